@@ -1,0 +1,33 @@
+# Two commands do all the set-up on a fresh machine:
+#   make demo   creates .venv, installs ushape, runs the quickstart experiment on synthetic data
+#   make test   creates .venv, installs ushape with test extras, runs the test suite (CI runs this)
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.ushape-installed
+
+.PHONY: install demo test test-slow bench gallery clean
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --disable-pip-version-check -e '.[dev]' > $(VENV)/pip-install.log 2>&1 \
+	  || { grep -v 'is ignored: it is neither' $(VENV)/pip-install.log; exit 1; }
+	$(PY) -c "import ushape, lightning, torchvision; print('ushape env ok: torch', __import__('torch').__version__)"
+	touch $(STAMP)
+
+install: $(STAMP)
+
+demo: install
+	$(PY) train.py experiment=quickstart $(ARGS)
+
+test: install
+	$(PY) -m pytest -q -m "not slow" $(ARGS)
+
+test-slow: install
+	$(PY) -m pytest -q -m slow $(ARGS)
+
+gallery: install
+	$(PY) -m ushape.data.preview $(ARGS)
+
+clean:
+	rm -rf $(VENV) outputs multirun .pytest_cache
