@@ -1,0 +1,73 @@
+"""The stage-1 decoder is trained once per identity and reused, also under concurrent runs."""
+
+import multiprocessing as mp
+import time
+from pathlib import Path
+
+from omegaconf import OmegaConf
+
+from ushape.decoder.artifacts import DONE_FILE
+from ushape.experiment.decoder_store import decoder_dir_for, ensure_decoder
+
+
+def _cfg(tmp_path: Path, **over):
+    cfg = OmegaConf.create(
+        {
+            "seed": 1,
+            "category": {"name": "chairs"},
+            "data": {"n_train": 4, "num_workers": 0, "root": str(tmp_path / "data")},
+            "decoder": {"_target_": "x", "hidden_dims": [8]},
+            "stage1": {"epochs": 3},
+            "paths": {"decoders_dir": str(tmp_path / "decoders")},
+            "loss": {"_target_": "es"},
+        }
+    )
+    return OmegaConf.merge(cfg, OmegaConf.create(over))
+
+
+def _fake_train(folder: Path, log: Path | None = None, delay: float = 0.0):
+    time.sleep(delay)
+    if log is not None:
+        with open(log, "a") as fh:
+            fh.write("trained\n")
+    (folder / DONE_FILE).write_text("ok")
+
+
+def test_reuse_and_identity(tmp_path):
+    calls = []
+    cfg = _cfg(tmp_path)
+    first = ensure_decoder(cfg, lambda d: (calls.append(d), _fake_train(d)))
+    again = ensure_decoder(_cfg(tmp_path, loss={"_target_": "nll"}, data={"num_workers": 2}), lambda d: calls.append(d))
+    assert first == again and len(calls) == 1  # loss and worker count do not change the decoder
+    other = decoder_dir_for(_cfg(tmp_path, decoder={"hidden_dims": [16]}))
+    assert other != first
+    assert decoder_dir_for(_cfg(tmp_path, category={"name": "tables"})) != first
+
+
+def test_unfinished_training_is_an_error_not_a_reusable_folder(tmp_path):
+    cfg = _cfg(tmp_path)
+    try:
+        ensure_decoder(cfg, lambda d: None)
+    except RuntimeError as err:
+        assert DONE_FILE in str(err)
+    else:
+        raise AssertionError("expected RuntimeError")
+    calls = []
+    ensure_decoder(cfg, lambda d: (calls.append(1), _fake_train(d)))
+    assert calls == [1]
+
+
+def _worker(tmp: str, log: str):
+    ensure_decoder(_cfg(Path(tmp)), lambda d: _fake_train(d, Path(log), delay=1.0))
+
+
+def test_two_concurrent_runs_train_once(tmp_path):
+    log = tmp_path / "log.txt"
+    ctx = mp.get_context("spawn")
+    procs = [ctx.Process(target=_worker, args=(str(tmp_path), str(log))) for _ in range(2)]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join(60)
+        assert p.exitcode == 0
+    assert log.read_text().count("trained") == 1

@@ -1,0 +1,1 @@
+"""Experiment orchestration: what the entry scripts (train.py, ...) call."""

@@ -1,0 +1,72 @@
+"""One stage-1 decoder per (category, data, decoder, stage-1 settings), shared by every stage-2 run.
+
+A sweep such as `python train.py -m loss=es,nll,l2` needs the same decoder three times. The first
+run to get here trains it; the others wait on a file lock and then reuse the finished folder. A
+folder counts as finished only once its DONE marker exists (written last), so an interrupted
+training is resumed from its last checkpoint rather than trusted.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+from filelock import FileLock
+from omegaconf import DictConfig, OmegaConf
+
+from ushape.decoder.artifacts import DONE_FILE
+
+log = logging.getLogger(__name__)
+
+# Settings that change the decoder; anything else (logging, workers, the trainer's device) does not.
+_IGNORED_DATA_KEYS = {"num_workers", "root"}
+
+
+def decoder_identity(cfg: DictConfig) -> dict[str, Any]:
+    """The part of the config that determines the stage-1 decoder."""
+    data = {k: v for k, v in OmegaConf.to_container(cfg.data, resolve=True).items() if k not in _IGNORED_DATA_KEYS}
+    return {
+        "category": cfg.category.name,
+        "data": data,
+        "decoder": OmegaConf.to_container(cfg.decoder, resolve=True),
+        "stage1": OmegaConf.to_container(cfg.stage1, resolve=True),
+        "seed": int(cfg.seed),
+    }
+
+
+def identity_hash(identity: Mapping[str, Any]) -> str:
+    return hashlib.sha256(json.dumps(identity, sort_keys=True).encode()).hexdigest()[:12]
+
+
+def decoder_dir_for(cfg: DictConfig) -> Path:
+    identity = decoder_identity(cfg)
+    return Path(cfg.paths.decoders_dir).resolve() / f"{identity['category']}-{identity_hash(identity)}"
+
+
+def is_complete(decoder_dir: Path) -> bool:
+    return (decoder_dir / DONE_FILE).exists()
+
+
+def ensure_decoder(cfg: DictConfig, train: Callable[[Path], None], lock_timeout_s: float = -1) -> Path:
+    """Return the finished decoder folder for `cfg`, calling `train(folder)` only if none exists yet."""
+    folder = decoder_dir_for(cfg)
+    if is_complete(folder):
+        log.info("Reusing the stage-1 decoder in %s", folder)
+        return folder
+    folder.mkdir(parents=True, exist_ok=True)
+    identity_file = folder / "identity.json"
+    with FileLock(str(folder) + ".lock", timeout=lock_timeout_s):
+        if is_complete(folder):  # another run finished it while we waited
+            log.info("Reusing the stage-1 decoder another run just finished: %s", folder)
+            return folder
+        from ushape import atomic
+
+        atomic.write_json(identity_file, decoder_identity(cfg))
+        log.info("Training the stage-1 decoder into %s", folder)
+        train(folder)
+        if not is_complete(folder):
+            raise RuntimeError(f"stage-1 training returned without finishing {folder} (no {DONE_FILE} marker)")
+    return folder
