@@ -1,0 +1,26 @@
+"""Uncertainty propagation: a Gaussian over the latent code -> mean and variance of the SDF at points."""
+
+from ushape.propagation.decoding import decode_points, frozen
+from ushape.propagation.linearised import propagate_linearised
+from ushape.propagation.mesh import (
+    METHODS,
+    decode_field,
+    field_uncertainty,
+    grid_points,
+    propagate,
+    vertex_uncertainty,
+)
+from ushape.propagation.monte_carlo import propagate_mc
+
+__all__ = [
+    "METHODS",
+    "decode_field",
+    "decode_points",
+    "field_uncertainty",
+    "frozen",
+    "grid_points",
+    "propagate",
+    "propagate_linearised",
+    "propagate_mc",
+    "vertex_uncertainty",
+]

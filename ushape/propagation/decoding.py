@@ -1,0 +1,91 @@
+"""Evaluating a frozen decoder f(xyz, z) at many points in chunks, optionally under bf16 autocast."""
+
+from __future__ import annotations
+
+from contextlib import contextmanager, nullcontext
+from typing import Callable, ContextManager, Iterator
+
+import torch
+from torch import Tensor, nn
+from torch.nn.utils import parametrize
+
+Decoder = Callable[[Tensor, Tensor], Tensor]  # (xyz [..., 3], z [..., D]) -> sdf [...]
+
+
+@contextmanager
+def frozen(decoder: Decoder) -> Iterator[Decoder]:
+    """Eval mode, parameters not requiring grad, weight-norm weights computed once; restored on exit.
+
+    Without this, dropout would add noise to every SDF sample, a backward pass for the
+    latent Jacobian would also build weight gradients, and weight normalisation would
+    recompute every layer's weight on every chunk.
+    """
+    if not isinstance(decoder, nn.Module):
+        yield decoder
+        return
+    modes = [(module, module.training) for module in decoder.modules()]
+    grads = [(param, param.requires_grad) for param in decoder.parameters()]
+    decoder.eval()
+    for param, _ in grads:
+        param.requires_grad_(False)
+    try:
+        with parametrize.cached():
+            yield decoder
+    finally:
+        for module, training in modes:
+            module.training = training
+        for param, requires_grad in grads:
+            param.requires_grad_(requires_grad)
+
+
+def autocast(bf16: bool, device: torch.device) -> ContextManager:
+    """bf16 autocast on `device` when asked (3-4x faster matmuls on AMX CPUs), else nothing."""
+    return torch.autocast(device.type, dtype=torch.bfloat16) if bf16 else nullcontext()
+
+
+def check_latent_gaussian(mu: Tensor, var: Tensor) -> None:
+    """Raise a ValueError unless mu, var are one diagonal Gaussian over the latent code: [D] each, var >= 0."""
+    if mu.ndim != 1 or mu.shape != var.shape:
+        raise ValueError(
+            f"expected one latent Gaussian with mu [D] and var [D], got {tuple(mu.shape)} and {tuple(var.shape)}"
+        )
+    if not (torch.isfinite(mu).all() and torch.isfinite(var).all()):
+        raise ValueError("mu or var holds NaN/inf; the latent Gaussian must be finite")
+    if (var < 0).any():
+        raise ValueError("var must be >= 0 (a variance, not a log-variance or a standard deviation)")
+
+
+def check_points(points: Tensor) -> None:
+    """Raise a ValueError unless points is [P, 3]."""
+    if points.ndim != 2 or points.shape[-1] != 3:
+        raise ValueError(f"points must have shape [P, 3], got {tuple(points.shape)}")
+
+
+def check_chunk(chunk: int) -> None:
+    if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
+        raise ValueError(f"chunk (points per decoder pass) must be a positive integer, got {chunk!r}")
+
+
+def decode_points(
+    decoder: Decoder,
+    z: Tensor,  # [D]
+    points: Tensor,  # [P, 3]
+    chunk: int = 32768,
+    bf16: bool = False,
+) -> Tensor:  # [P]
+    """SDF f(x, z) at every point for one latent code, in chunks of `chunk` points, without gradients."""
+    if z.ndim != 1:
+        raise ValueError(f"z must be one latent code of shape [D], got {tuple(z.shape)}")
+    check_points(points)
+    check_chunk(chunk)
+    out = torch.empty(points.shape[0], dtype=output_dtype(points, bf16), device=points.device)
+    with frozen(decoder), torch.no_grad(), autocast(bf16, points.device):
+        for start in range(0, points.shape[0], chunk):
+            block = points[start : start + chunk]
+            out[start : start + block.shape[0]] = decoder(block, z)
+    return out
+
+
+def output_dtype(points: Tensor, bf16: bool) -> torch.dtype:
+    """SDFs come back in the points' dtype; bf16 runs come back in float32 for the statistics."""
+    return torch.float32 if bf16 else points.dtype

@@ -1,0 +1,88 @@
+"""SDF uncertainty where a reconstruction needs it: at mesh vertices, or over a whole grid in [-1, 1]^3."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from ushape.propagation.decoding import Decoder, decode_points
+from ushape.propagation.linearised import propagate_linearised
+from ushape.propagation.monte_carlo import propagate_mc
+
+METHODS = ("mc", "linearised")
+
+
+def grid_points(resolution: int, dtype: torch.dtype = torch.float32, device: str | torch.device = "cpu") -> Tensor:
+    """Points [N^3, 3] of the N^3 grid over [-1, 1]^3, coordinate -1 + i * 2/(N-1), x slowest (ij order)."""
+    if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution < 2:
+        raise ValueError(f"resolution must be an integer >= 2 (grid points per axis), got {resolution!r}")
+    axis = -1.0 + torch.arange(resolution, dtype=torch.float64) * (2.0 / (resolution - 1))
+    x, y, z = torch.meshgrid(axis, axis, axis, indexing="ij")
+    return torch.stack([x, y, z], dim=-1).reshape(-1, 3).to(dtype=dtype, device=device)
+
+
+def propagate(
+    decoder: Decoder,
+    mu: Tensor,  # [D]
+    var: Tensor,  # [D]
+    points: Tensor,  # [P, 3]
+    method: str = "mc",
+    n_samples: int = 10,
+    generator: torch.Generator | None = None,
+    chunk: int | None = None,
+    bf16: bool = False,
+) -> tuple[Tensor, Tensor]:
+    """SDF mean [P] and variance [P] at points by Monte Carlo ("mc") or first-order ("linearised")."""
+    if method == "mc":
+        kwargs = {} if chunk is None else {"chunk": chunk}
+        return propagate_mc(decoder, mu, var, points, n_samples, generator, bf16=bf16, **kwargs)
+    if method == "linearised":
+        kwargs = {} if chunk is None else {"chunk": chunk}
+        return propagate_linearised(decoder, mu, var, points, bf16=bf16, **kwargs)
+    raise ValueError(f"unknown propagation method {method!r}; choose one of {METHODS}")
+
+
+def vertex_uncertainty(
+    decoder: Decoder,
+    mu: Tensor,  # [D]
+    var: Tensor,  # [D]
+    vertices: Tensor,  # [V, 3]
+    method: str = "mc",
+    n_samples: int = 10,
+    generator: torch.Generator | None = None,
+    chunk: int | None = None,
+    bf16: bool = False,
+) -> Tensor:  # [V]
+    """Standard deviation of the SDF at each mesh vertex (the paper's per-vertex mesh colouring)."""
+    _, variance = propagate(decoder, mu, var, vertices, method, n_samples, generator, chunk, bf16)
+    return variance.sqrt()
+
+
+def field_uncertainty(
+    decoder: Decoder,
+    mu: Tensor,  # [D]
+    var: Tensor,  # [D]
+    resolution: int,
+    method: str = "linearised",
+    n_samples: int = 10,
+    generator: torch.Generator | None = None,
+    chunk: int | None = None,
+    bf16: bool = False,
+) -> tuple[Tensor, Tensor]:
+    """SDF mean and variance grids [N, N, N] over [-1, 1]^3 (see `grid_points` for the layout)."""
+    points = grid_points(resolution, mu.dtype, mu.device)
+    mean, variance = propagate(decoder, mu, var, points, method, n_samples, generator, chunk, bf16)
+    shape = (resolution,) * 3
+    return mean.reshape(shape), variance.reshape(shape)
+
+
+def decode_field(
+    decoder: Decoder,
+    z: Tensor,  # [D]
+    resolution: int,
+    chunk: int = 32768,
+    bf16: bool = False,
+) -> Tensor:  # [N, N, N]
+    """Plain SDF grid [N, N, N] over [-1, 1]^3 for one code, no uncertainty (the cost baseline)."""
+    points = grid_points(resolution, z.dtype, z.device)
+    return decode_points(decoder, z, points, chunk, bf16).reshape((resolution,) * 3)
