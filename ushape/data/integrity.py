@@ -26,7 +26,7 @@ def check_npz(path: Path, expected: dict[str, ShapeSpec], dtypes: dict[str, str]
     if not path.is_file():
         return MISSING
     try:
-        with np.load(path) as data:
+        with open(path, "rb") as fh, np.load(fh) as data:
             for key, spec in expected.items():
                 if key not in data.files:
                     return f"has no array {key!r}"
@@ -45,7 +45,7 @@ def check_png(path: Path, size_hw: tuple[int, int], mode: str = "RGBA") -> Optio
     if not path.is_file():
         return MISSING
     try:
-        with Image.open(path) as image:
+        with open(path, "rb") as fh, Image.open(fh) as image:
             image.load()
             if image.mode != mode or image.size != (size_hw[1], size_hw[0]):
                 return f"is {image.mode} {image.size[1]}x{image.size[0]}, expected {mode} {size_hw[0]}x{size_hw[1]}"

@@ -71,7 +71,7 @@ class SyntheticWorld:
                             ("image_size", image_size), ("mesh_resolution", mesh_resolution)):
             if int(value) < 1:
                 raise ValueError(f"{name} must be positive, got {value}")
-        self.factory = shape_factory or _default_factory(category)
+        self.factory = shape_factory or default_shape_factory(category)
         self.root = Path(root).expanduser()
         self.counts = {k: int(v) for k, v in counts.items()}
         self.num_workers = int(num_workers)
@@ -110,6 +110,9 @@ class SyntheticWorld:
         index = WorldIndex(root=self.directory, category=self.config["category"], splits={}, config=self.config)
         seeds = shape_seeds(self.config["seed"], self.counts)
         splits = {split: self._split_ids(index, split, seeds[split]) for split in SPLITS}
+        all_ids = [sid for ids in splits.values() for sid in ids]
+        if len(set(all_ids)) != len(all_ids):
+            raise RuntimeError(f"splits of {self.directory} share shape ids; delete its splits/ folder to regenerate")
         index = WorldIndex(root=self.directory, category=index.category, splits=splits, config=self.config)
         jobs = [ShapeJob(index, split, i, seeds[split][i], sid, self.factory)
                 for split in SPLITS for i, sid in enumerate(splits[split])]
@@ -159,7 +162,7 @@ class SyntheticWorld:
             yield from tqdm(pool.imap_unordered(build_shape, jobs), **progress)
 
 
-def _default_factory(category: str) -> ShapeFactory:
+def default_shape_factory(category: str) -> ShapeFactory:
     """ushape.shapes.generate_shape, after checking the category is one it makes."""
     from ushape.shapes import CATEGORIES, generate_shape
 
