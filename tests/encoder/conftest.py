@@ -62,7 +62,7 @@ def decoder_dir(tmp_path):
     return folder
 
 
-TINY_ENCODER = {
-    "backbone": {"_target_": "ushape.encoder.backbones.resnet18", "pretrained": False},
-    "latent_size": LATENT,
-}
+@pytest.fixture
+def tiny_encoder():
+    """An ImageEncoder config small enough for CPU tests (random-init ResNet-18)."""
+    return {"backbone": {"_target_": "ushape.encoder.backbones.resnet18", "pretrained": False}, "latent_size": LATENT}

@@ -1,0 +1,51 @@
+"""The Gaussian head's soft log-variance clamp and the ImageEncoder's interface."""
+
+import pytest
+import torch
+
+from ushape.encoder.heads import GaussianHead, ImageEncoder, soft_clamp
+
+
+def test_soft_clamp_is_identity_at_the_midpoint_and_bounded():
+    x = torch.tensor([-1e6, -4.0, 1e6], requires_grad=True)
+    y = soft_clamp(x, -12.0, 4.0)
+    assert y[1].item() == pytest.approx(-4.0)
+    assert -12.0 <= y[0].item() < -11.99 and 3.99 < y[2].item() <= 4.0
+    mid = torch.tensor(-4.0, requires_grad=True)
+    soft_clamp(mid, -12.0, 4.0).backward()
+    assert mid.grad.item() == pytest.approx(1.0)
+    outside = torch.tensor(10.0, requires_grad=True)
+    soft_clamp(outside, -12.0, 4.0).backward()
+    assert outside.grad.item() > 0  # unlike a hard clamp, a saturated variance can still come back
+
+
+def test_head_starts_at_the_midpoint_variance_and_stays_in_range():
+    head = GaussianHead(in_dim=5, latent_size=3, logvar_min=-6, logvar_max=2)
+    mu, logvar = head(torch.randn(4, 5))
+    assert mu.shape == logvar.shape == (4, 3)
+    assert torch.allclose(logvar, torch.full_like(logvar, -2.0))
+    with torch.no_grad():
+        head.logvar.weight.fill_(100.0)
+    _, logvar = head(torch.full((1, 5), 10.0))
+    assert (logvar <= 2).all() and (logvar > -6).all()
+
+
+def test_head_rejects_an_empty_range():
+    with pytest.raises(ValueError, match="below"):
+        GaussianHead(4, logvar_min=1.0, logvar_max=1.0)
+
+
+def test_image_encoder_shapes_and_normalisation(tiny_encoder):
+    encoder = ImageEncoder(**tiny_encoder).eval()
+    mu, logvar = encoder(torch.rand(2, 3, 32, 32))
+    assert mu.shape == logvar.shape == (2, tiny_encoder["latent_size"])
+    assert torch.allclose(encoder.pixel_mean.flatten(), torch.tensor([0.485, 0.456, 0.406]))
+    assert "pixel_mean" not in encoder.state_dict()
+
+
+def test_image_encoder_bad_input(tiny_encoder):
+    encoder = ImageEncoder(**tiny_encoder)
+    with pytest.raises(ValueError, match=r"\[B, 3, H, W\]"):
+        encoder(torch.rand(2, 4, 32, 32))
+    with pytest.raises(ValueError, match="_target_"):
+        ImageEncoder(backbone={"pretrained": False})
