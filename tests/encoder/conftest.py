@@ -66,3 +66,9 @@ def decoder_dir(tmp_path):
 def tiny_encoder():
     """An ImageEncoder config small enough for CPU tests (random-init ResNet-18)."""
     return {"backbone": {"_target_": "ushape.encoder.backbones.resnet18", "pretrained": False}, "latent_size": LATENT}
+
+
+@pytest.fixture
+def world_spec():
+    """The sizes of the `world` and `decoder_dir` fixtures."""
+    return {"latent": LATENT, "splits": dict(SPLIT_SIZES), "n_views": N_VIEWS, "image_size": IMAGE_SIZE}
