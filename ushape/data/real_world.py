@@ -1,0 +1,251 @@
+"""ShapeNetCore preprocessed into the world layout that training reads (`ushape.data.layout`).
+
+    <cache_root>/shapenet/<synset>-<hash12>/   config.json, splits/, meshes/, sdf/, renders/,
+                                                shapes/, skipped.json
+
+Per model: the OBJ is loaded with its material/texture colours, normalised to DeepSDF's unit
+sphere, sampled for SDF with `ushape.data.mesh_sdf` (robust sign for real meshes), and given
+views: ShapeNetRendering's images and cameras when `renderings_root` is set, otherwise our own
+R2N2-protocol renders. A model that cannot be processed is logged, listed in skipped.json with
+its reason and left out of the splits; it is not retried while the config (hence the folder)
+is unchanged. Every file is written atomically and existing valid files are kept, so an
+interrupted build resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import logging
+import multiprocessing
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, Optional, Sequence
+
+import numpy as np
+import trimesh
+from PIL import Image
+from tqdm.auto import tqdm
+
+from ushape import atomic
+from ushape.data import integrity, shapenet, shapenet_rendering
+from ushape.data.cameras import format_metadata, metadata_to_cameras, parse_metadata, sample_r2n2_views
+from ushape.data.layout import SPLITS, WorldIndex
+from ushape.data.mesh_sdf import MeshProcessingError, load_mesh, normalise_mesh, sample_mesh_sdf
+from ushape.data.rendering import render_views
+from ushape.data.shape_artifacts import artifact_problems, r2n2_frame
+
+log = logging.getLogger(__name__)
+
+PREPROCESS_VERSION = 1
+SKIPPED_FILE = "skipped.json"
+SDF_STREAM, VIEWS_STREAM = 1, 2
+
+
+@dataclass(frozen=True)
+class ModelJob:
+    index: WorldIndex
+    model_id: str
+    split: str
+    source: str  # the model's OBJ path
+    layout: str
+    synset: str
+    renderings_root: Optional[str]
+    seed: int
+
+
+class ShapeNetWorld:
+    """Builds (once) and caches one ShapeNet category as a world; `build()` returns its WorldIndex."""
+
+    def __init__(
+        self,
+        category: str,
+        root: str,
+        cache_root: str,
+        split_file: shapenet.SplitSource = None,
+        renderings_root: Optional[str] = None,
+        samples_per_shape: int = 250_000,
+        n_views: int = 24,
+        image_size: int = 137,
+        seed: int = 0,
+        max_shapes: Optional[int] = None,
+        num_workers: int = 0,
+        split_fractions: Sequence[float] = shapenet.DEFAULT_FRACTIONS,
+    ) -> None:
+        for name, value in (("samples_per_shape", samples_per_shape), ("n_views", n_views),
+                            ("image_size", image_size)):
+            if int(value) < 1:
+                raise ValueError(f"{name} must be positive, got {value}")
+        if max_shapes is not None and int(max_shapes) < 1:
+            raise ValueError(f"max_shapes must be positive or None, got {max_shapes}")
+        self.synset = shapenet.synset_id(category)
+        self.root = Path(root).expanduser().resolve()
+        self.layout, self.available = shapenet.list_models(self.root, self.synset)
+        self.renderings_root = str(Path(renderings_root).expanduser().resolve()) if renderings_root else None
+        if self.renderings_root:
+            shapenet_rendering.check_root(self.renderings_root, self.synset)
+            if int(n_views) > 24:
+                raise ValueError(f"ShapeNetRendering has 24 views per model; n_views={n_views} is too many")
+        self.cache_root = Path(cache_root).expanduser()
+        self.split_file = split_file
+        self.num_workers = int(num_workers)
+        self.config: dict[str, Any] = {
+            "dataset": "shapenet", "category": str(category), "synset": self.synset,
+            "root": str(self.root), "layout": self.layout, "renderings_root": self.renderings_root,
+            "split": _split_fingerprint(split_file), "split_fractions": [float(f) for f in split_fractions],
+            "samples_per_shape": int(samples_per_shape), "n_views": int(n_views), "image_size": int(image_size),
+            "seed": int(seed), "max_shapes": None if max_shapes is None else int(max_shapes),
+            "preprocess_version": PREPROCESS_VERSION,
+        }
+
+    @property
+    def directory(self) -> Path:
+        digest = hashlib.sha256(json.dumps(self.config, sort_keys=True).encode()).hexdigest()[:12]
+        return self.cache_root / "shapenet" / f"{self.synset}-{digest}"
+
+    def planned_splits(self) -> dict[str, list[str]]:
+        """Model ids per split before any skipping (split file or hash split, capped by max_shapes)."""
+        if self.split_file is None:
+            splits = shapenet.hash_split(self.available, self.config["split_fractions"])
+        else:
+            splits = shapenet.read_split_source(self.split_file, self.synset)
+        cap = self.config["max_shapes"]
+        if cap is not None:
+            splits = {s: sorted(ids, key=lambda i: (shapenet.id_hash(i), i))[:cap] for s, ids in splits.items()}
+        return splits
+
+    def build(self) -> WorldIndex:
+        """Preprocess whatever is missing (idempotent) and return the world's index."""
+        start = time.perf_counter()
+        root = self.directory
+        if _json_differs(root / "config.json", self.config):
+            atomic.write_json(root / "config.json", self.config)
+        planned = self.planned_splits()
+        skipped = _read_skipped(root / SKIPPED_FILE)
+        available = set(self.available)
+        for ids in planned.values():
+            for mid in ids:
+                if mid not in available and mid not in skipped:
+                    skipped[mid] = f"listed in the split but {shapenet.model_path(self.root, self.synset, mid, self.layout)} is missing"
+        index = WorldIndex(root=root, category=self.config["category"], splits=planned, config=self.config)
+        jobs = [self._job(index, split, mid) for split in SPLITS for mid in dict.fromkeys(planned[split])
+                if mid not in skipped]
+        jobs = list({j.model_id: j for j in jobs}.values())  # val/test may share a model
+        for model_id, reason in self._run(jobs):
+            if reason is not None:
+                log.warning("skipping ShapeNet model %s: %s", model_id, reason)
+                skipped[model_id] = reason
+        atomic.write_json(root / SKIPPED_FILE, skipped)
+        splits = {s: [m for m in planned[s] if m not in skipped] for s in SPLITS}
+        if not splits["train"]:
+            raise ValueError(
+                f"no usable training shape in {self.synset} under {self.root}: {len(skipped)} skipped "
+                f"(see {root / SKIPPED_FILE}); check the split file and the dataset layout"
+            )
+        for split in SPLITS:
+            if _json_differs(index.split_path(split), splits[split]):
+                atomic.write_json(index.split_path(split), splits[split])
+        log.info("ShapeNet %s world %s ready in %.1fs (%d skipped)", self.synset, root,
+                 time.perf_counter() - start, len(skipped))
+        return WorldIndex.load(root)
+
+    def _job(self, index: WorldIndex, split: str, model_id: str) -> ModelJob:
+        source = shapenet.model_path(self.root, self.synset, model_id, self.layout)
+        seed = int(np.random.SeedSequence([self.config["seed"], shapenet.id_hash(model_id)]).generate_state(1)[0])
+        return ModelJob(index, model_id, split, str(source), self.layout, self.synset, self.renderings_root, seed)
+
+    def _run(self, jobs: list[ModelJob]) -> Iterable[tuple[str, Optional[str]]]:
+        progress = dict(total=len(jobs), desc=f"ShapeNet {self.synset}", unit="model")
+        if self.num_workers <= 0:
+            yield from tqdm(map(process_model, jobs), **progress)
+            return
+        with multiprocessing.get_context("spawn").Pool(self.num_workers) as pool:
+            yield from tqdm(pool.imap_unordered(process_model, jobs), **progress)
+
+
+def process_model(job: ModelJob) -> tuple[str, Optional[str]]:
+    """Make one model's missing artifacts; (model id, None) or (model id, reason it was skipped)."""
+    problems = artifact_problems(job.index, job.model_id)
+    if not problems:
+        return job.model_id, None
+    try:
+        mesh, centre, scale = normalise_mesh(load_mesh(job.source))
+        if "mesh" in problems:
+            atomic.write_bytes(job.index.mesh_path(job.model_id), trimesh.exchange.ply.export_ply(mesh, encoding="binary"))
+        if "sdf" in problems:
+            rng = np.random.default_rng(np.random.SeedSequence(job.seed, spawn_key=(SDF_STREAM,)))
+            samples = sample_mesh_sdf(mesh, int(job.index.config["samples_per_shape"]), rng)
+            atomic.save_npz(job.index.sdf_path(job.model_id), **samples)
+        if "renders" in problems:
+            write_model_views(job, mesh)
+    except (MeshProcessingError, FileNotFoundError) as err:
+        return job.model_id, f"{type(err).__name__}: {err}"
+    atomic.write_json(job.index.shape_path(job.model_id), {
+        "shape_id": job.model_id, "category": job.index.category, "synset": job.synset, "split": job.split,
+        "source": job.source, "layout": job.layout, "centre": centre.tolist(), "scale": float(scale),
+        "views": "shapenet_rendering" if job.renderings_root else "ushape",
+    })
+    return job.model_id, None
+
+
+def write_model_views(job: ModelJob, mesh: trimesh.Trimesh) -> None:
+    """PNGs, rendering_metadata.txt and views.npz of one model: R2N2's images if given, else ours."""
+    index, n_views, size = job.index, int(job.index.config["n_views"]), int(job.index.config["image_size"])
+    if job.renderings_root:
+        rows = shapenet_rendering.read_metadata(job.renderings_root, job.synset, job.model_id)[:n_views]
+        if len(rows) < n_views:
+            raise FileNotFoundError(f"{job.model_id}: rendering metadata lists {len(rows)} views, need {n_views}")
+        paths = shapenet_rendering.image_paths(job.renderings_root, job.synset, job.model_id, n_views)
+        rgba = np.stack([shapenet_rendering.load_rgba(p, size) for p in paths])
+        text = format_metadata(rows)
+    else:
+        rng = np.random.default_rng(np.random.SeedSequence(job.seed, spawn_key=(VIEWS_STREAM,)))
+        text, rgba = format_metadata(sample_r2n2_views(n_views, rng)), None
+    centre, scale = r2n2_frame(mesh)
+    # R2N2's files store 25 in the fov column, which is not the lens it rendered with; ours store
+    # the true one. Either way the protocol's lens is right (see ushape.data.cameras).
+    Ks, world_to_cams = metadata_to_cameras(parse_metadata(text), size, r2n2_centre=centre, r2n2_scale=scale)
+    ours = render_views(mesh, Ks, world_to_cams, size)
+    extra = {}
+    if rgba is None:
+        rgba, masks = ours["rgba"], ours["mask"]
+    else:
+        masks = rgba[..., 3] > 0
+        extra["r2n2_mask_iou"] = np.float32(shapenet_rendering.render_agreement(masks, ours["mask"]))
+    for view in range(n_views):
+        buffer = io.BytesIO()
+        Image.fromarray(rgba[view], mode="RGBA").save(buffer, format="PNG")
+        atomic.write_bytes(index.image_path(job.model_id, view), buffer.getvalue())
+    atomic.write_text(index.metadata_path(job.model_id), text)
+    atomic.save_npz(
+        index.views_path(job.model_id), K=Ks.astype(np.float32), world_to_cam=world_to_cams.astype(np.float32),
+        masks=masks, depth=ours["depth"].astype(np.float32), r2n2_centre=centre.astype(np.float32),
+        r2n2_scale=np.float32(scale), **extra,
+    )
+
+
+def _split_fingerprint(source: shapenet.SplitSource) -> Any:
+    """What identifies a split source in the config hash: paths and the SHA-256 of their contents."""
+    if source is None:
+        return None
+    if isinstance(source, dict) or hasattr(source, "items"):
+        return {k: _split_fingerprint(v) for k, v in sorted(source.items())}
+    path = Path(source).expanduser().resolve()
+    files = sorted(path.glob("*.json")) if path.is_dir() else [path]
+    digest = hashlib.sha256(b"".join(f.read_bytes() for f in files if f.is_file())).hexdigest()[:12]
+    return {"path": str(path), "sha256": digest}
+
+
+def _json_differs(path: Path, value: Any) -> bool:
+    if integrity.check_json(path) is not None:
+        return True
+    return json.loads(path.read_text()) != value
+
+
+def _read_skipped(path: Path) -> dict[str, str]:
+    if integrity.check_json(path) is not None:
+        return {}
+    data = json.loads(path.read_text())
+    return {str(k): str(v) for k, v in data.items()} if isinstance(data, dict) else {}

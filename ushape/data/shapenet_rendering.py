@@ -1,0 +1,85 @@
+"""ShapeNetRendering (3D-R2N2's renders of ShapeNetCore v1): images, metadata and cameras.
+
+    <root>/<synset>/<model_id>/rendering/00.png .. 23.png          137x137 RGBA
+    <root>/<synset>/<model_id>/rendering/rendering_metadata.txt   "az el inplane dist_ratio fov" per view
+
+Cameras follow `ushape.data.cameras` (R2N2's Blender protocol). What is assumed about frames:
+R2N2 rendered ShapeNetCore v1's OBJ after scaling it to a unit bounding-box diagonal about
+its box centre. Centring and uniform scaling commute with our own normalisation, so the
+box centre and diagonal of *our normalised mesh* (`r2n2_frame`) place the R2N2 cameras
+correctly whichever ShapeNet version the mesh came from, provided v1 and v2 share their
+axes (y up, the same front). ShapeNet notes v1 had some left-right flipped conversions that
+v2 fixed; `render_agreement` (mask IoU between an R2N2 image and our render through its
+camera) is recorded per shape so such models can be found and dropped.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from PIL import Image
+
+from ushape.data.cameras import metadata_to_cameras, parse_metadata
+from ushape.data.shape_artifacts import r2n2_frame
+
+RENDERING_DIR = "rendering"
+METADATA_FILE = "rendering_metadata.txt"
+R2N2_IMAGE_SIZE = 137
+EXPECTED_LAYOUT = (
+    "<root>/<synset>/<model_id>/rendering/{00..23}.png and rendering/rendering_metadata.txt "
+    "(ShapeNetRendering.tgz from 3D-R2N2, unpacked)"
+)
+
+
+def rendering_dir(root: str | Path, synset: str, model_id: str) -> Path:
+    return Path(root).expanduser() / synset / model_id / RENDERING_DIR
+
+
+def check_root(root: str | Path, synset: str) -> Path:
+    """The synset folder of a ShapeNetRendering root; a clear error when the layout does not match."""
+    root = Path(root).expanduser()
+    if not (root / synset).is_dir():
+        raise FileNotFoundError(f"ShapeNetRendering root {root} has no folder {synset}. Expected {EXPECTED_LAYOUT}")
+    return root / synset
+
+
+def read_metadata(root: str | Path, synset: str, model_id: str) -> np.ndarray:
+    """Metadata rows [V,5] (azimuth, elevation, in-plane, distance ratio, fov) of one model."""
+    path = rendering_dir(root, synset, model_id) / METADATA_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} is missing. Expected {EXPECTED_LAYOUT}")
+    return parse_metadata(path.read_text())
+
+
+def image_paths(root: str | Path, synset: str, model_id: str, n_views: int) -> list[Path]:
+    """Paths of views 00..n_views-1; FileNotFoundError naming the first missing one."""
+    folder = rendering_dir(root, synset, model_id)
+    paths = [folder / f"{v:02d}.png" for v in range(n_views)]
+    missing = [p for p in paths if not p.is_file()]
+    if missing:
+        raise FileNotFoundError(f"{len(missing)} of {n_views} renders missing, e.g. {missing[0]}. Expected {EXPECTED_LAYOUT}")
+    return paths
+
+
+def load_rgba(path: str | Path, image_size: int) -> np.ndarray:
+    """RGBA uint8 [S,S,4] of one render, resized (bilinear) when image_size is not R2N2's 137."""
+    with Image.open(path) as image:
+        image = image.convert("RGBA")
+        if image.size != (image_size, image_size):
+            image = image.resize((image_size, image_size), Image.BILINEAR)
+        return np.asarray(image, dtype=np.uint8).copy()
+
+
+def model_cameras(rows: np.ndarray, mesh: trimesh.Trimesh, image_size: int) -> tuple[np.ndarray, np.ndarray]:
+    """(K [V,3,3], world_to_cam [V,4,4]) in the normalised mesh's frame from R2N2 rows [V,5]."""
+    centre, scale = r2n2_frame(mesh)
+    return metadata_to_cameras(rows, image_size, r2n2_centre=centre, r2n2_scale=scale)
+
+
+def render_agreement(r2n2_masks: np.ndarray, our_masks: np.ndarray) -> float:
+    """Mean per-view IoU [] of R2N2 alpha masks [V,H,W] and our renders' masks [V,H,W]."""
+    inter = np.logical_and(r2n2_masks, our_masks).sum(axis=(1, 2))
+    union = np.logical_or(r2n2_masks, our_masks).sum(axis=(1, 2))
+    return float(np.mean(np.where(union > 0, inter / np.maximum(union, 1), 1.0)))
