@@ -1,0 +1,65 @@
+"""Temperature scaling: the closed form must equal a numeric NLL minimiser and fix known mis-scaling."""
+
+import math
+
+import pytest
+import torch
+from scipy.optimize import minimize_scalar
+
+from ushape.evaluation.calibration import calibration_curve, calibration_error
+from ushape.recalibration import apply_temperature, fit_temperature, gaussian_nll_with_temperature
+
+
+def _validation(scale, n=4000, d=16, seed=0):
+    """Targets drawn with `scale` times the variance the model predicts."""
+    gen = torch.Generator().manual_seed(seed)
+    mu = torch.randn(n, d, generator=gen, dtype=torch.float64)
+    var = torch.rand(n, d, generator=gen, dtype=torch.float64) + 0.05
+    target = mu + (scale * var).sqrt() * torch.randn(n, d, generator=gen, dtype=torch.float64)
+    return mu, var, target
+
+
+def test_closed_form_equals_numeric_minimiser():
+    mu, var, target = _validation(scale=2.5, n=500)
+    closed = fit_temperature(mu, var, target)
+    numeric = minimize_scalar(
+        lambda log_t: gaussian_nll_with_temperature(mu, var, target, math.exp(log_t)), bounds=(-5, 5), method="bounded",
+        options={"xatol": 1e-10},
+    )
+    assert closed == pytest.approx(math.exp(numeric.x), rel=1e-5)
+
+
+def test_recovers_the_known_variance_scale():
+    for scale in (0.25, 1.0, 4.0):
+        mu, var, target = _validation(scale)
+        assert fit_temperature(mu, var, target) == pytest.approx(scale, rel=0.03)
+
+
+def test_scaling_repairs_an_overconfident_model():
+    mu, var, target = _validation(scale=4.0, seed=1)
+    temperature = fit_temperature(mu, var, target)
+    abs_error = (target - mu).abs()
+    before = calibration_error(*calibration_curve(abs_error, var.sqrt(), 50))
+    after = calibration_error(*calibration_curve(abs_error, apply_temperature(var, temperature).sqrt(), 50))
+    assert before > 0.1 and after < 0.01
+    assert isinstance(temperature, float)
+
+
+def test_apply_temperature_scales_variance():
+    var = torch.tensor([1.0, 2.0])
+    assert apply_temperature(var, 3.0).tolist() == [3.0, 6.0]
+    for bad in (0.0, -1.0, float("nan"), float("inf"), "hot"):
+        with pytest.raises(ValueError, match="temperature must be"):
+            apply_temperature(var, bad)
+
+
+def test_bad_validation_data():
+    mu, var, target = _validation(1.0, n=4, d=2)
+    with pytest.raises(ValueError, match="one shape"):
+        fit_temperature(mu, var[:, :1], target)
+    with pytest.raises(ValueError, match="var must be > 0"):
+        fit_temperature(mu, torch.zeros_like(var), target)
+    with pytest.raises(ValueError, match="NaN"):
+        fit_temperature(mu, var, target * float("nan"))
+    with pytest.raises(ValueError, match="no spread"):
+        fit_temperature(mu, var, mu.clone())

@@ -1,0 +1,85 @@
+"""Calibration plot maths (supplement S2.2): how often errors fall inside the predicted p-interval.
+
+Each prediction is a univariate Gaussian (one latent dimension, or one SDF value); the
+interval for probability p is |error| <= Q(p) sigma with Q the two-sided standard normal
+quantile, Pr(|X| <= Q(p)) = p, i.e. Q(p) = Phi^-1((1 + p) / 2), so Q(0.9973) = 3.
+(The supplement's "Q(0.9984) ~ 3" is a slip; 3 sigma holds 99.73 %.)
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import torch
+from torch import Tensor
+
+
+def two_sided_quantile(p: Tensor) -> Tensor:
+    """Q(p) = Phi^-1((1 + p)/2): the half-width in standard deviations holding probability p."""
+    return torch.special.ndtri((1 + p) / 2)
+
+
+def probability_levels(n_levels: int) -> Tensor:
+    """T probabilities spread uniformly over (0, 1): the bin centres (t - 0.5)/T, t = 1..T."""
+    if isinstance(n_levels, bool) or not isinstance(n_levels, int) or n_levels < 1:
+        raise ValueError(f"n_levels must be a positive integer, got {n_levels!r}")
+    return (torch.arange(n_levels, dtype=torch.float64) + 0.5) / n_levels
+
+
+def calibration_curve(
+    abs_error: Tensor,  # [N]
+    sigma: Tensor,  # [N]
+    n_levels: int = 100,
+) -> tuple[Tensor, Tensor]:
+    """Predicted probabilities p [T] and observed frequencies freq [T] of |error| <= Q(p_t) sigma.
+
+    Inputs are flattened, so latent [N, D] or SDF [N, P] arrays can be passed as they are
+    (every dimension / value counts as its own prediction, as in the paper).
+    """
+    abs_error = torch.as_tensor(abs_error, dtype=torch.float64).reshape(-1)
+    sigma = torch.as_tensor(sigma, dtype=torch.float64).reshape(-1)
+    if abs_error.shape != sigma.shape:
+        raise ValueError(f"abs_error has {abs_error.numel()} values but sigma has {sigma.numel()}; pass one sigma per error")
+    if abs_error.numel() == 0:
+        raise ValueError("no predictions: abs_error and sigma are empty")
+    if not (torch.isfinite(abs_error).all() and torch.isfinite(sigma).all()):
+        raise ValueError("abs_error or sigma holds NaN/inf values")
+    if (abs_error < 0).any():
+        raise ValueError("abs_error must be >= 0: pass |x - mu|, not the signed error")
+    if (sigma < 0).any():
+        raise ValueError("sigma must be >= 0 (a standard deviation, not a variance or log-variance)")
+    # Standardised error: the fraction inside Q(p) sigma is then one sorted search per level.
+    # sigma = 0 is a point prediction: inside every interval if exact, outside all otherwise.
+    ratio = torch.where(sigma > 0, abs_error / sigma.clamp(min=torch.finfo(torch.float64).tiny), torch.inf)
+    ratio = torch.where((sigma == 0) & (abs_error == 0), 0.0, ratio)
+    p = probability_levels(n_levels)
+    inside = torch.searchsorted(torch.sort(ratio).values, two_sided_quantile(p), right=True)
+    return p, inside.double() / ratio.numel()
+
+
+def calibration_error(p: Tensor, freq: Tensor) -> float:
+    """Mean absolute gap |freq_t - p_t| over the levels: the area between the curve and Y=X
+    (midpoint rule on uniform levels); 0 is perfect calibration, at most 0.5."""
+    p, freq = torch.as_tensor(p, dtype=torch.float64), torch.as_tensor(freq, dtype=torch.float64)
+    if p.shape != freq.shape or p.ndim != 1 or p.numel() == 0:
+        raise ValueError(f"p {tuple(p.shape)} and freq {tuple(freq.shape)} must be the same non-empty 1-D curve")
+    return float((freq - p).abs().mean())
+
+
+def plot_calibration(curves: Mapping[str, tuple[Tensor, Tensor]], title: str = "Calibration"):
+    """A matplotlib Figure: Y=X dashed, one line per method (legend shows its calibration error)."""
+    from matplotlib.figure import Figure  # the pyplot-free Figure: no global state, no GUI backend
+
+    if not curves:
+        raise ValueError("no curves to plot: pass {method name: (p, freq)}")
+    fig = Figure(figsize=(4.5, 4.5))
+    ax = fig.add_subplot()
+    ax.plot([0, 1], [0, 1], linestyle="--", color="black", linewidth=1, label="ideal (Y = X)")
+    for name, (p, freq) in curves.items():
+        error = calibration_error(p, freq)
+        ax.plot(torch.as_tensor(p).tolist(), torch.as_tensor(freq).tolist(), label=f"{name} (CE {error:.3f})")
+    ax.set(xlim=(0, 1), ylim=(0, 1), xlabel="predicted probability p", ylabel="observed frequency", title=title)
+    ax.set_aspect("equal")
+    ax.legend(loc="upper left", fontsize="small")
+    fig.tight_layout()
+    return fig
