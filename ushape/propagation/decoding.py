@@ -70,7 +70,7 @@ def decode_points(
     decoder: Decoder,
     z: Tensor,  # [D]
     points: Tensor,  # [P, 3]
-    chunk: int = 32768,
+    chunk: int = 8192,
     bf16: bool = False,
 ) -> Tensor:  # [P]
     """SDF f(x, z) at every point for one latent code, in chunks of `chunk` points, without gradients."""

@@ -41,7 +41,7 @@ def propagate_linearised(
     mu: Tensor,  # [D]
     var: Tensor,  # [D]
     points: Tensor,  # [P, 3]
-    chunk: int = 16384,
+    chunk: int = 4096,
     bf16: bool = False,
 ) -> tuple[Tensor, Tensor]:
     """SDF mean f(x, mu) [P] and first-order variance sum_d (ds/dz_d)^2 var_d [P] at points.
