@@ -1,0 +1,117 @@
+"""Robust SDF of real meshes: known answers on boxes, robustness to orientation/holes/duplicates, errors."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from ushape.data.mesh_sdf import (
+    UNIT_SPHERE_BUFFER,
+    MeshProcessingError,
+    MeshSdf,
+    load_mesh,
+    normalise_mesh,
+    sample_mesh_sdf,
+)
+
+
+def box_sdf(points, half):
+    """Exact SDF of an axis-aligned box centred at the origin."""
+    q = np.abs(points) - half
+    return np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0)
+
+
+@pytest.fixture
+def cube_points(rng):
+    return rng.uniform(-0.8, 0.8, size=(3000, 3))
+
+
+def test_box_sdf_is_exact_up_to_rare_candidate_misses(cube_points):
+    half = np.array([0.3, 0.5, 0.2])
+    mesh = trimesh.creation.box(extents=2 * half)
+    error = np.abs(MeshSdf(mesh, n_surface_samples=20_000).sdf(cube_points) - box_sdf(cube_points, half))
+    # Exact unless the closest triangle is not among the k candidates; then within the sample spacing.
+    assert np.mean(error < 1e-9) > 0.99
+    assert error.max() < 5e-3
+
+
+def test_sign_ignores_orientation_duplicates_and_inner_faces(cube_points):
+    half = np.array([0.4, 0.4, 0.4])
+    mesh = trimesh.creation.box(extents=2 * half)
+    flipped = mesh.faces.copy()
+    flipped[::2] = flipped[::2, ::-1]  # half the faces wound the wrong way
+    inner = trimesh.creation.box(extents=(0.2, 0.2, 0.2))
+    soup = trimesh.util.concatenate([trimesh.Trimesh(mesh.vertices, flipped, process=False), mesh, inner])
+    inside = MeshSdf(soup, n_surface_samples=20_000).inside(cube_points)
+    expected = box_sdf(cube_points, half) < 0
+    assert np.mean(inside == expected) == 1.0
+
+
+def test_sign_tolerates_a_hole(rng):
+    mesh = trimesh.creation.box(extents=(1.0, 1.0, 1.0)).subdivide().subdivide().subdivide()
+    lid = np.flatnonzero(mesh.face_normals[:, 1] > 0.5)
+    holed = trimesh.Trimesh(mesh.vertices, np.delete(mesh.faces, lid[:2], axis=0), process=False)
+    deep = rng.uniform(-0.45, 0.0, size=(500, 3))  # lower half: hardly any ray finds the hole
+    outside = rng.uniform(0.6, 0.9, size=(500, 3))
+    sdf = MeshSdf(holed, n_surface_samples=20_000)
+    assert sdf.inside(deep).mean() > 0.95
+    assert not sdf.inside(outside).any()
+
+
+def test_normalisation_is_deepsdf_unit_sphere(make_box):
+    mesh, centre, scale = normalise_mesh(make_box(extents=(0.4, 0.8, 0.3), centre=(0.1, 0.2, -0.1)))
+    np.testing.assert_allclose(centre, [0.1, 0.2, -0.1], atol=1e-12)
+    np.testing.assert_allclose(scale, 1.0 / (np.linalg.norm([0.2, 0.4, 0.15]) * UNIT_SPHERE_BUFFER))
+    np.testing.assert_allclose(np.linalg.norm(mesh.vertices, axis=1).max(), 1 / UNIT_SPHERE_BUFFER)
+    np.testing.assert_allclose(mesh.bounds.mean(axis=0), 0.0, atol=1e-12)
+
+
+def test_samples_of_a_box_have_correct_signs(make_box, rng):
+    mesh, _, _ = normalise_mesh(make_box())
+    samples = sample_mesh_sdf(mesh, 4000, rng, n_surface_samples=20_000)
+    half = mesh.extents / 2
+    for key in ("pos", "neg"):
+        rows = samples[key]
+        exact = box_sdf(rows[:, :3].astype(np.float64), half)
+        assert np.all(np.sign(rows[:, 3]) == np.sign(exact)) and np.abs(rows[:, 3] - exact).max() < 5e-3
+    assert len(samples["neg"]) > 400 and len(samples["pos"]) + len(samples["neg"]) == 4000
+
+
+def test_open_sheet_encloses_no_volume(rng):
+    sheet = trimesh.Trimesh([[-0.5, 0, -0.5], [0.5, 0, -0.5], [0.5, 0, 0.5], [-0.5, 0, 0.5]], [[0, 1, 2], [0, 2, 3]])
+    with pytest.raises(MeshProcessingError, match="encloses no volume"):
+        sample_mesh_sdf(sheet, 2000, rng, n_surface_samples=5_000)
+
+
+def test_sieve_like_mesh_is_inconclusive(rng):
+    # A sphere with 6% of its faces missing leaks a few rays from everywhere inside.
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    kept = rng.random(len(sphere.faces)) > 0.06
+    sieve = trimesh.Trimesh(sphere.vertices, sphere.faces[kept], process=False)
+    with pytest.raises(MeshProcessingError, match="inconclusive"):
+        MeshSdf(sieve, n_surface_samples=5_000).inside(rng.uniform(-0.4, 0.4, (500, 3)))
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("", "no triangles"),
+        ("v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", "degenerate"),
+        ("this is not an obj file at all\n\x00\x01", "no triangles|cannot read"),
+    ],
+)
+def test_broken_model_files_raise_mesh_processing_error(tmp_path, text, message):
+    path = tmp_path / "model.obj"
+    path.write_text(text)
+    with pytest.raises(MeshProcessingError, match=message):
+        load_mesh(path)
+
+
+def test_non_finite_vertices():
+    mesh = trimesh.Trimesh([[np.nan, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], process=False)
+    with pytest.raises(MeshProcessingError, match="NaN"):
+        normalise_mesh(mesh)
+
+
+def test_missing_model_file(tmp_path):
+    with pytest.raises(MeshProcessingError, match="does not exist"):
+        load_mesh(tmp_path / "absent.obj")
