@@ -1,0 +1,66 @@
+"""Validation pictures of stage 2: latent calibration plots and decoded meshes beside their input view."""
+
+from __future__ import annotations
+
+from typing import Mapping, Sequence
+
+import numpy as np
+import torch
+from matplotlib.figure import Figure
+from torch import Tensor, nn
+
+# A fixed three-quarter view of the normalised cube [-1, 1]^3 for mesh pictures.
+MESH_VIEW = {"azimuth_deg": 45.0, "elevation_deg": 25.0, "distance": 3.2, "fov_deg": 40.0}
+
+
+def calibration_figure(curves: Mapping[str, tuple[Tensor, Tensor]], title: str = "latent calibration") -> Figure:
+    """Frequency F_t against probability p_t per named curve, with the calibrated line Y = X."""
+    fig = Figure(figsize=(4, 4), dpi=100)
+    ax = fig.add_subplot()
+    ax.plot([0, 1], [0, 1], "k--", linewidth=1, label="calibrated")
+    for label, (p, freq) in curves.items():
+        ax.plot(p.cpu().numpy(), freq.cpu().numpy(), marker="o", markersize=3, label=label)
+    ax.set(xlim=(0, 1), ylim=(0, 1), xlabel="predicted probability $p_t$", ylabel="observed frequency $F_t$", title=title)
+    ax.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def render_code(decoder: nn.Module, code: Tensor, resolution: int = 48, image_size: int = 128) -> np.ndarray | None:
+    """RGBA uint8 [S, S, 4] of the decoder's mesh for one code [D] from `MESH_VIEW`; None if no surface."""
+    from ushape.data.cameras import look_at
+    from ushape.data.rendering import render_mesh
+    from ushape.mesh.extraction import EmptySurfaceError, extract_mesh
+
+    code = code.detach().float()
+    decoder_device = next(decoder.parameters()).device
+
+    @torch.no_grad()
+    def sdf_fn(points: Tensor) -> Tensor:
+        return decoder(points.to(decoder_device), code.to(decoder_device)).float().cpu()
+
+    try:
+        mesh, _ = extract_mesh(sdf_fn, resolution=resolution, method="dense")
+    except EmptySurfaceError:
+        return None
+    return render_mesh(mesh, *look_at(image_size=image_size, **MESH_VIEW))["rgba"]
+
+
+def mesh_panel(images: Tensor, predicted: Sequence[np.ndarray | None], target: Sequence[np.ndarray | None]) -> Figure:
+    """Rows of (input view, mesh of the predicted mean code, mesh of the stage-1 code). images [N, 3, H, W]."""
+    n = images.shape[0]
+    fig = Figure(figsize=(6, 2 * n), dpi=100)
+    axes = fig.subplots(n, 3, squeeze=False)
+    for row in range(n):
+        panels = (images[row].permute(1, 2, 0).clamp(0, 1).cpu().numpy(), predicted[row], target[row])
+        for col, (panel, name) in enumerate(zip(panels, ("input", "mean code", "stage-1 code"))):
+            ax = axes[row][col]
+            ax.axis("off")
+            if row == 0:
+                ax.set_title(name, fontsize=9)
+            if panel is None:
+                ax.text(0.5, 0.5, "no surface", ha="center", va="center", transform=ax.transAxes)
+            else:
+                ax.imshow(panel)
+    fig.tight_layout()
+    return fig

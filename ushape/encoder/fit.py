@@ -1,0 +1,78 @@
+"""Train the stage-2 encoder on a rendered world and a stage-1 decoder folder; return the checkpoint."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import lightning as L
+from lightning.pytorch.callbacks import Callback, LearningRateMonitor, ModelCheckpoint
+from lightning.pytorch.loggers import Logger, TensorBoardLogger
+from lightning.pytorch.plugins.io import TorchCheckpointIO
+from omegaconf import OmegaConf
+
+from ushape import atomic
+from ushape.data.render_dataset import EncoderDataModule
+from ushape.encoder.module import EncoderModule
+
+log = logging.getLogger(__name__)
+
+CHECKPOINT_DIR = "checkpoints"
+BEST_NAME = "best"
+LAST_FILE = "last.ckpt"
+
+
+class AtomicCheckpointIO(TorchCheckpointIO):
+    """Lightning checkpoints written through `ushape.atomic`: a crash never leaves half a file."""
+
+    def save_checkpoint(self, checkpoint: dict, path, storage_options=None) -> None:
+        atomic.torch_save(checkpoint, path)
+
+
+def _plain(config: Mapping[str, Any] | None) -> dict[str, Any]:
+    if config is None:
+        return {}
+    return OmegaConf.to_container(config, resolve=True) if OmegaConf.is_config(config) else dict(config)
+
+
+def fit_encoder(
+    world_root: str | Path,
+    decoder_dir: str | Path,
+    out_dir: str | Path,
+    encoder: Mapping[str, Any],
+    loss: Mapping[str, Any],
+    module: Mapping[str, Any] | None = None,
+    data: Mapping[str, Any] | None = None,
+    trainer: Mapping[str, Any] | None = None,
+    logger: Logger | Sequence[Logger] | bool | None = None,
+    callbacks: Sequence[Callback] | None = None,
+    monitor: str = "val/loss",
+) -> Path:
+    """Fit EncoderModule(**module) on EncoderDataModule(**data) with L.Trainer(**trainer).
+
+    Checkpoints go to <out_dir>/checkpoints/ (best.ckpt by `monitor`, last.ckpt); an existing
+    last.ckpt is resumed. Returns the best checkpoint (last.ckpt if none was ranked).
+    """
+    out_dir = Path(out_dir)
+    ckpt_dir = out_dir / CHECKPOINT_DIR
+    datamodule = EncoderDataModule(world_root=str(world_root), decoder_dir=str(decoder_dir), **_plain(data))
+    model = EncoderModule(decoder_path=str(decoder_dir), encoder=_plain(encoder), loss=_plain(loss), **_plain(module))
+    checkpoint = ModelCheckpoint(dirpath=ckpt_dir, filename=BEST_NAME, monitor=monitor, mode="min", save_last=True)
+    if logger is None:
+        logger = TensorBoardLogger(save_dir=str(out_dir), name="tensorboard")
+    run = L.Trainer(
+        **_plain(trainer),
+        default_root_dir=str(out_dir),
+        logger=logger,
+        callbacks=[checkpoint, *([LearningRateMonitor("step")] if logger is not False else []), *(callbacks or [])],
+        plugins=[AtomicCheckpointIO()],
+    )
+    resume = ckpt_dir / LAST_FILE
+    if resume.exists():
+        log.info("resuming stage-2 training from %s", resume)
+    run.fit(model, datamodule=datamodule, ckpt_path=str(resume) if resume.exists() else None)
+    best = checkpoint.best_model_path or checkpoint.last_model_path
+    if not best:
+        raise RuntimeError(f"training wrote no checkpoint into {ckpt_dir}; check trainer limits (max_epochs/max_steps)")
+    return Path(best)
