@@ -107,7 +107,7 @@ def test_batched_inputs_match_per_object_fusion():
         (lambda: fuse_bayesian(torch.zeros(0, 4), torch.zeros(0, 4)), "no views"),
         (lambda: fuse_bayesian(torch.zeros(2, 4), torch.ones(2, 5)), r"\(2, 4\).*\(2, 5\)"),
         (lambda: fuse_bayesian(torch.zeros(4), torch.ones(4)), r"\[V, D\]"),
-        (lambda: fuse_bayesian_k(torch.zeros(2, 4), torch.ones(2, 4), k=0), "k must be >= 1"),
+        (lambda: fuse_bayesian_k(torch.zeros(2, 4), torch.ones(2, 4), k=0), "k must be an integer >= 1"),
         (lambda: fuse_bayesian(torch.zeros(2, 4), -torch.ones(2, 4)), "negative"),
         (lambda: fuse_bayesian(torch.zeros(2, 4), torch.ones(2, 4), var_floor=0.0), "var_floor"),
     ],
@@ -156,3 +156,13 @@ def test_fusing_ten_views_is_fast():
         per_call = (time.perf_counter() - start) / 1000
     # The paper reports 0.1 ms on a GPU; leave headroom for a loaded shared CPU.
     assert per_call < 1e-3, f"fusing 10 views took {per_call * 1e3:.3f} ms"
+
+
+def test_k_accepts_integer_likes_and_rejects_others():
+    import numpy as np
+
+    mu, var = torch.randn(4, 3), torch.rand(4, 3) + 0.1
+    assert fuse_bayesian_k(mu, var, np.int64(2)).kept.shape == (2,)
+    for bad in (1.5, True, "2", -1):
+        with pytest.raises(ValueError, match="k must be an integer >= 1"):
+            fuse_bayesian_k(mu, var, bad)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ushape.fusion.rules import FusedCode, check_views, product_of_gaussians
+from ushape.fusion.rules import FusedCode, check_k, check_views, product_of_gaussians
 
 RULES = ("average", "bayesian", "bayesian_k")
 
@@ -21,8 +21,10 @@ class IncrementalFuser:
     def __init__(self, rule: str = "bayesian", k: int | None = None, var_floor: float = 1e-8) -> None:
         if rule not in RULES:
             raise ValueError(f"unknown fusion rule {rule!r}; choose one of {RULES}")
-        if rule == "bayesian_k" and (k is None or isinstance(k, bool) or not isinstance(k, int) or k < 1):
-            raise ValueError(f"rule 'bayesian_k' needs an integer k >= 1 (views to keep), got {k!r}")
+        if rule == "bayesian_k":
+            if k is None:
+                raise ValueError("rule 'bayesian_k' needs an integer k >= 1 (views to keep), got None")
+            k = check_k(k)
         if var_floor <= 0:
             raise ValueError(f"var_floor must be > 0, got {var_floor}")
         self.rule = rule

@@ -7,6 +7,7 @@ the views that went into the result ([K] or [B, K], ascending view order).
 
 from __future__ import annotations
 
+import operator
 import warnings
 from typing import NamedTuple
 
@@ -44,6 +45,17 @@ def check_views(mu: Tensor, var: Tensor) -> None:
     if negative.any():
         views = sorted({int(v) for v in negative.nonzero()[:, -2].tolist()})
         raise ValueError(f"var is negative in view(s) {views}; variances must be >= 0 (did you pass log-variance?)")
+
+
+def check_k(k: int) -> int:
+    """k as a Python int, or a ValueError unless it is an integer >= 1 (views to keep)."""
+    try:
+        value = operator.index(k) if not isinstance(k, bool) else None
+    except TypeError:
+        value = None
+    if value is None or value < 1:
+        raise ValueError(f"k must be an integer >= 1 (the number of views to keep), got {k!r}")
+    return value
 
 
 def _all_views(mu: Tensor) -> Tensor:
@@ -108,10 +120,7 @@ def fuse_bayesian_k(mu: Tensor, var: Tensor, k: int, var_floor: float = 1e-8) ->
     The paper's outlier rejection ("Bayesian-N"): a very uncertain view (e.g. occluded) is
     dropped instead of being fused with a small weight. K > V uses all views and warns.
     """
-    if isinstance(k, bool) or not isinstance(k, int):
-        raise ValueError(f"k must be an integer number of views, got {k!r}")
-    if k < 1:
-        raise ValueError(f"k must be >= 1 (the number of views to keep), got {k}")
+    k = check_k(k)
     if var_floor <= 0:
         raise ValueError(f"var_floor must be > 0, got {var_floor}")
     check_views(mu, var)

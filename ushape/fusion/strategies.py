@@ -5,7 +5,7 @@ from __future__ import annotations
 from torch import Tensor
 
 from ushape.fusion.incremental import IncrementalFuser
-from ushape.fusion.rules import FusedCode, fuse_average, fuse_bayesian, fuse_bayesian_k
+from ushape.fusion.rules import FusedCode, check_k, fuse_average, fuse_bayesian, fuse_bayesian_k
 
 
 class AverageFusion:
@@ -43,8 +43,7 @@ class BayesianKFusion:
     """Product of the K least uncertain views (the paper's "Bayesian-N" outlier rejection)."""
 
     def __init__(self, k: int, var_floor: float = 1e-8) -> None:
-        if isinstance(k, bool) or not isinstance(k, int) or k < 1:
-            raise ValueError(f"k must be an integer >= 1 (views to keep), got {k!r}")
+        k = check_k(k)
         if var_floor <= 0:
             raise ValueError(f"var_floor must be > 0, got {var_floor}")
         self.k = k
