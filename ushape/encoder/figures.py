@@ -43,7 +43,8 @@ def render_code(decoder: nn.Module, code: Tensor, resolution: int = 48, image_si
         mesh, _ = extract_mesh(sdf_fn, resolution=resolution, method="dense")
     except EmptySurfaceError:
         return None
-    return render_mesh(mesh, *look_at(image_size=image_size, **MESH_VIEW))["rgba"]
+    K, world_to_cam = look_at(image_size=image_size, **MESH_VIEW)
+    return render_mesh(mesh, K, world_to_cam, image_size)["rgba"]
 
 
 def mesh_panel(images: Tensor, predicted: Sequence[np.ndarray | None], target: Sequence[np.ndarray | None]) -> Figure:
