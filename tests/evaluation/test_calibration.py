@@ -89,7 +89,10 @@ def test_bad_inputs(abs_error, sigma, message):
 
 def test_plot_has_diagonal_and_one_line_per_method(tmp_path):
     abs_error, sigma = _errors(2000)
-    curves = {"ours": calibration_curve(abs_error, sigma, 20), "equal variance": calibration_curve(abs_error, torch.ones_like(sigma), 20)}
+    curves = {
+        "ours": calibration_curve(abs_error, sigma, 20),
+        "equal variance": calibration_curve(abs_error, torch.ones_like(sigma), 20),
+    }
     fig = plot_calibration(curves, title="latent space")
     ax = fig.axes[0]
     assert isinstance(fig, matplotlib.figure.Figure)

@@ -39,7 +39,9 @@ def calibration_curve(
     abs_error = torch.as_tensor(abs_error, dtype=torch.float64).reshape(-1)
     sigma = torch.as_tensor(sigma, dtype=torch.float64).reshape(-1)
     if abs_error.shape != sigma.shape:
-        raise ValueError(f"abs_error has {abs_error.numel()} values but sigma has {sigma.numel()}; pass one sigma per error")
+        raise ValueError(
+            f"abs_error has {abs_error.numel()} values but sigma has {sigma.numel()}; pass one sigma per error"
+        )
     if abs_error.numel() == 0:
         raise ValueError("no predictions: abs_error and sigma are empty")
     if not (torch.isfinite(abs_error).all() and torch.isfinite(sigma).all()):
