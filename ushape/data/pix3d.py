@@ -183,7 +183,7 @@ class Pix3DImages(Dataset):
     """Cropped Pix3D photos -> dict(image, mask [1,image_size,image_size], model_id, group, view, img).
 
     `transform(rgba, generator)` maps the premultiplied RGBA crop to the encoder's input (default:
-    resize to `image_size` and composite on white). With `multiview`, items are only the images of
+    resize to `image_size` and composite on white, which also fills crop areas outside the photo). With `multiview`, items are only the images of
     Pix3D-MV groups, `group` is the instance index and `view` the position in it; otherwise every
     filtered image is an item and `group`/`view` are -1.
     """
@@ -217,7 +217,9 @@ class Pix3DImages(Dataset):
             raise ValueError(f"no Pix3D images of category {category!r} left after filtering under {self.root}")
         self.crop_size, self.margin, self.mask_mode = int(crop_size), float(margin), mask_mode
         self.image_size = int(image_size)
-        self.transform = transform or build_transform(image_size, train=False, mask_mode=mask_mode)
+        # The crop's alpha already encodes mask_mode; compositing on plain white only fills what
+        # lies outside the photo (or outside the mask in gt_mask mode).
+        self.transform = transform or build_transform(image_size, train=False, mask_mode="gt_mask")
 
     def __len__(self) -> int:
         return len(self.items)
