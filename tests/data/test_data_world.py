@@ -124,3 +124,12 @@ def test_bad_parameters_are_rejected(tmp_path):
         tiny_world(tmp_path, n_train=0)
     with pytest.raises(ValueError, match="n_views must be positive"):
         tiny_world(tmp_path, n_views=0)
+
+
+def test_worker_processes_build_the_same_world(built, tmp_path):
+    _, index = built
+    parallel = tiny_world(tmp_path, num_workers=2).build()
+    assert parallel.splits == index.splits
+    for sid in index.shape_ids():
+        assert parallel.sdf_path(sid).read_bytes() == index.sdf_path(sid).read_bytes()
+        assert parallel.image_paths(sid)[0].read_bytes() == index.image_paths(sid)[0].read_bytes()
