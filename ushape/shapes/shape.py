@@ -22,10 +22,11 @@ class Part:
     primitives: tuple[Primitive, ...]
 
 
-def union_sdf(primitives: Sequence[Primitive], boxes: np.ndarray, points: np.ndarray, cells: int = 8) -> np.ndarray:
+def union_sdf(primitives: Sequence[Primitive], boxes: np.ndarray, points: np.ndarray) -> np.ndarray:
     """[N,3] -> [N] exact min over primitives of their SDF (same frame), evaluating few of them.
 
-    Points are grouped into `cells`^3 bins over their bounding box. A primitive lies inside its box
+    Points are grouped into up to 8^3 bins over their bounding box (about a thousand points per
+    bin, so numpy calls stay large). A primitive lies inside its box
     `boxes[i]` ([2,3] lo, hi), so the gap between that box and a bin's box bounds its SDF from
     below for every point of the bin; primitives are tried nearest first, and once that bound
     reaches the bin's worst current value no later primitive can lower any point of the bin.
@@ -35,6 +36,7 @@ def union_sdf(primitives: Sequence[Primitive], boxes: np.ndarray, points: np.nda
     if n == 0:
         return out
     lo, hi = points.min(0), points.max(0)
+    cells = int(np.clip(np.cbrt(n / 1000.0), 1, 8))
     bins = np.minimum(((points - lo) / np.maximum(hi - lo, 1e-12) * cells).astype(np.int64), cells - 1)
     key = (bins[:, 0] * cells + bins[:, 1]) * cells + bins[:, 2]
     order = np.argsort(key, kind="stable")
