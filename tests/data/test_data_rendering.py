@@ -7,8 +7,8 @@ import pytest
 import trimesh
 
 from ushape.data.cameras import R2N2_FOV_DEG, look_at
-from ushape.data.rendering import pixel_rays, render_mesh, render_views
-from ushape.data.shading import constant_colour_fn, mesh_colour_fn
+from ushape.data.rendering import RayCaster, face_and_vertex_normals, pixel_rays, render_mesh, render_views
+from ushape.data.shading import Lighting, constant_colour_fn, mesh_colour_fn
 
 RADIUS, DISTANCE, SIZE = 0.5, 1.5, 137
 
@@ -53,15 +53,19 @@ def test_shading_is_not_flat(sphere, camera):
     rim = inside & (out["depth"] > DISTANCE - RADIUS**2 / DISTANCE - 0.04)  # silhouette depth is d - r^2/d
     assert rim.sum() > 20
     assert grey[rim].mean() < grey[SIZE // 2, SIZE // 2]
+    # A white headlight highlight shows the form of dark materials too.
+    black = render_mesh(sphere, *camera, SIZE, constant_colour_fn((0.02, 0.02, 0.02)))["rgba"][..., 0]
+    assert int(black[SIZE // 2, SIZE // 2]) - int(black[rim].max()) > 20
 
 
 def test_colour_functions(sphere, camera):
-    out = render_mesh(sphere, *camera, SIZE, constant_colour_fn((1.0, 0.0, 0.0)))
+    matte = Lighting(specular=0.0)
+    out = render_mesh(sphere, *camera, SIZE, constant_colour_fn((1.0, 0.0, 0.0)), lighting=matte)
     assert (out["rgba"][out["mask"], 1:3] == 0).all() and out["rgba"][out["mask"], 0].min() > 0
     painted = sphere.copy()
     painted.visual.face_colors = np.tile([0, 200, 0, 255], (len(painted.faces), 1))
     assert mesh_colour_fn(sphere) is None or mesh_colour_fn(painted) is not None
-    out = render_mesh(painted, *camera, SIZE)  # colour_fn=None uses the mesh's own face colours
+    out = render_mesh(painted, *camera, SIZE, lighting=matte)  # colour_fn=None uses the mesh's own face colours
     rgb = out["rgba"][out["mask"], :3]
     assert (rgb[:, [0, 2]] == 0).all() and rgb[:, 1].max() > 100
 
@@ -82,3 +86,15 @@ def test_bad_inputs(sphere, camera):
         render_mesh(trimesh.Trimesh(), *camera, SIZE)
     with pytest.raises(ValueError, match="K \\[3,3\\]"):
         render_mesh(sphere, np.eye(4), camera[1], SIZE)
+
+
+def test_missing_embree_is_a_clear_error(sphere, monkeypatch):
+    monkeypatch.setattr(trimesh.ray, "has_embree", False)
+    with pytest.raises(ImportError, match="pip install embreex"):
+        RayCaster(sphere)
+
+
+def test_normals_point_outwards_on_a_sphere(sphere):
+    faces_n, vertex_n = face_and_vertex_normals(np.asarray(sphere.vertices), np.asarray(sphere.faces))
+    assert np.allclose(vertex_n, sphere.vertices / RADIUS, atol=5e-3)  # area weighting on a near-uniform sphere
+    assert np.allclose(faces_n, sphere.face_normals, atol=1e-9)

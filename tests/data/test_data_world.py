@@ -81,10 +81,12 @@ def test_corrupt_files_are_regenerated_with_a_warning(tmp_path):
     png = index.image_paths(sid)[2]
     png.write_bytes(png.read_bytes()[:40])
     os.remove(index.mesh_path(index.splits["test"][0]))  # missing: regenerated silently
+    ply = index.mesh_path(index.splits["val"][0])
+    ply.write_bytes(ply.read_bytes()[:-7])
     with pytest.warns(UserWarning, match="corrupt cache file") as record:
         world.build()
-    assert len(record) == 2, [str(r.message) for r in record]
-    assert world.last_build == {"sdf": 1, "renders": 1, "mesh": 1}
+    assert len(record) == 3, [str(r.message) for r in record]
+    assert world.last_build == {"sdf": 1, "renders": 1, "mesh": 2}
     assert index.sdf_path(sid).read_bytes() == good_sdf  # same seed stream: identical samples
     assert np.asarray(Image.open(png)).shape == (32, 32, 4)
     (index.root / "splits" / "val.json").write_text("[not json")

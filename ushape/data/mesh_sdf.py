@@ -172,7 +172,7 @@ class SurfaceDistance:
     def __call__(self, points: np.ndarray) -> np.ndarray:
         """Distance [N] from points [N,3] to the nearest triangle."""
         points = np.asarray(points, np.float64)
-        _, nearest = self._tree.query(points, k=self.k)
+        _, nearest = self._tree.query(points, k=self.k, workers=-1)
         candidates = self._faces[nearest.reshape(len(points), -1)]  # [N,k]
         queries = np.repeat(points, candidates.shape[1], axis=0)
         closest = trimesh.triangles.closest_point(self._triangles[candidates.ravel()], queries)

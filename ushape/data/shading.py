@@ -20,12 +20,15 @@ DEFAULT_ALBEDO = (0.72, 0.72, 0.72)
 
 @dataclass(frozen=True)
 class Lighting:
-    """Lambertian lights: a headlight along the view ray, a key light fixed in the world, ambient."""
+    """Lambertian headlight (along the view ray) and key light (fixed in the world), ambient, and a
+    white headlight highlight so that dark materials still show their form."""
 
     ambient: float = 0.28
     headlight: float = 0.42
     key: float = 0.45
     key_direction: tuple[float, float, float] = (0.35, 1.0, 0.55)  # world, pointing towards the light
+    specular: float = 0.12
+    shininess: float = 10.0
 
 
 def shade(albedo: np.ndarray, normals: np.ndarray, view_dirs: np.ndarray, lighting: Lighting) -> np.ndarray:
@@ -35,19 +38,25 @@ def shade(albedo: np.ndarray, normals: np.ndarray, view_dirs: np.ndarray, lighti
     head = np.clip(-(normals * view_dirs).sum(1), 0.0, 1.0)
     keyed = np.clip(normals @ key, 0.0, 1.0)
     intensity = lighting.ambient + lighting.headlight * head + lighting.key * keyed
-    return np.clip(albedo * intensity[:, None], 0.0, 1.0)
+    # For a headlight the Blinn-Phong half vector is the reversed view ray.
+    highlight = lighting.specular * head**lighting.shininess
+    return np.clip(albedo * intensity[:, None] + highlight[:, None], 0.0, 1.0)
 
 
 def surface_normals(
-    mesh: trimesh.Trimesh, points: np.ndarray, face_index: np.ndarray, view_dirs: np.ndarray, smooth: bool = True
+    face_normals: np.ndarray, corner_normals: Optional[np.ndarray], bary: np.ndarray, view_dirs: np.ndarray
 ) -> np.ndarray:
-    """Unit normals [N,3] at hit points, turned to face the camera (real meshes are not all oriented)."""
-    if smooth:
-        bary = trimesh.triangles.points_to_barycentric(mesh.triangles[face_index], points)
-        normals = np.einsum("nk,nkd->nd", bary, mesh.vertex_normals[mesh.faces[face_index]])
-        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    """Unit normals [N,3] at hit points, turned to face the camera (real meshes are not all oriented).
+
+    face_normals [N,3] of the hit faces; corner_normals [N,3,3] (vertex normals of the hit
+    faces' corners) interpolated with barycentric weights bary [N,3] for smooth shading, or
+    None for flat shading; view_dirs [N,3] unit rays from the camera.
+    """
+    if corner_normals is None:
+        normals = face_normals.copy()
     else:
-        normals = mesh.face_normals[face_index]
+        normals = np.einsum("nk,nkd->nd", bary, corner_normals)
+        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
     facing_away = (normals * view_dirs).sum(1) > 0
     normals[facing_away] *= -1.0
     return normals
@@ -68,7 +77,7 @@ def wood_grain(points: np.ndarray, part_index: np.ndarray, strength: float) -> n
     return 1.0 - strength * (0.75 * rings**3 + 0.25 * fine)
 
 
-def part_colour_fn(shape: object, grain_strength: float = 0.18) -> ColourFn:
+def part_colour_fn(shape: object, grain_strength: float = 0.12) -> ColourFn:
     """Colour function of a procedural shape: its part colours, modulated by wood grain."""
     colours = np.asarray(shape.part_colours(), dtype=np.float64)
 
