@@ -59,3 +59,12 @@ def test_mesh_is_cached_and_returned_as_a_copy():
     second = shape.mesh(48)
     assert np.abs(second.vertices).max() < 1.0
     assert shape._meshes[48] is not second
+
+
+@pytest.mark.parametrize("category", ["chairs", "tables"])
+def test_no_floating_parts_over_many_seeds(category):
+    """Every part touches the rest: the coarse mesh is one watertight piece (seeds 100..119)."""
+    for seed in range(100, 120):
+        mesh = generate_shape(category, seed).mesh(96)
+        assert mesh.is_watertight, f"{category} {seed}"
+        assert len(mesh.split(only_watertight=False)) == 1, f"{category} {seed} has floating parts"

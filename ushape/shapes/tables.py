@@ -42,9 +42,10 @@ def _leg_anchors(style: dict, inset: float) -> np.ndarray:
 _PAIRS = {"box": [(0, 1), (2, 3), (0, 2), (1, 3)], "H": [(0, 2), (1, 3)], "X": [(0, 3), (1, 2)]}
 
 
-def _shelf(style: dict, anchors: np.ndarray) -> Slab:
+def _shelf(style: dict, front_right: np.ndarray) -> Slab:
+    """Lower shelf whose outline passes through the leg centres (front_right: [3] at shelf height)."""
     lt, t = style["leg_thickness"], style["shelf_thickness"]
-    a, b = float(anchors[1, 0]), float(anchors[1, 1])
+    a, b = float(front_right[0]), float(front_right[2])
     if style["top"] != "rectangular":
         a, b = a * math.sqrt(2.0), b * math.sqrt(2.0)  # the ellipse through the leg centres
     return Slab(
@@ -82,7 +83,8 @@ def _four_legs(style: dict, parts: dict) -> None:
             bars.append(rod((on_leg(0, y) + on_leg(2, y)) / 2, (on_leg(1, y) + on_leg(3, y)) / 2, 0.55 * lt, bar))
         parts["stretchers"] = bars
     if style["shelf"]:
-        parts["shelf"] = [_shelf(style, anchors)]
+        # Splayed legs stand wider at the shelf than under the top.
+        parts["shelf"] = [_shelf(style, on_leg(1, style["shelf_height"]))]
 
 
 def _pedestal_foot(style: dict, x: float) -> list[Primitive]:
@@ -144,8 +146,10 @@ def _trestle(style: dict, parts: dict) -> None:
             ]
     if style["stretchers"]:
         # X legs cross at mid height; a beam elsewhere would hang in the air between the diagonals.
-        y = (foot_h / 2 + under - cleat_h / 2) / 2 if style["trestle_upright"] == "x_legs" else style["stretcher_height"]
-        parts["stretchers"] = [Box.between((-x_end, y, 0), (x_end, y, 0), 0.08, 0.035, hint=(0.0, 1.0, 0.0))]
+        kind = style["trestle_upright"]
+        y = (foot_h / 2 + under - cleat_h / 2) / 2 if kind == "x_legs" else style["stretcher_height"]
+        zs = (-0.6 * half_foot, 0.6 * half_foot) if kind == "twin_posts" else (0.0,)
+        parts["stretchers"] = [Box.between((-x_end, y, z), (x_end, y, z), 0.08, 0.035, hint=(0.0, 1.0, 0.0)) for z in zs]
 
 
 def build_table(style: dict) -> dict[str, list[Primitive]]:
