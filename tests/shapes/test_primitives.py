@@ -141,7 +141,8 @@ def test_max_distance_closed_forms():
     cyl = CappedCone(a=(0, -1, 0), b=(0, 1, 0), radius_a=0.5, radius_b=0.5)
     assert cyl.max_distance(np.zeros(3)) == pytest.approx(math.hypot(1.0, 0.5))
     assert Torus(major=1.0, minor=0.25).max_distance(np.zeros(3)) == pytest.approx(1.25)
-    assert Box(half=(1, 2, 2), radius=0.5).max_distance(np.zeros(3)) == pytest.approx(math.sqrt(0.25 + 2.25 + 2.25) + 0.5)
+    rounded = Box(half=(1, 2, 2), radius=0.5)  # inner corners at (0.5, 1.5, 1.5)
+    assert rounded.max_distance(np.zeros(3)) == pytest.approx(math.sqrt(0.25 + 2.25 + 2.25) + 0.5)
 
 
 def test_thickened_raises_only_thin_dimensions():

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from ushape.shapes.chair_backs import BackMount, build_back
-from ushape.shapes.members import rod
+from ushape.shapes.members import rod, splayed_legs
 from ushape.shapes.primitives import Box, CappedCone, Capsule, Primitive, Slab, Torus
 
 PART_ORDER = ("seat", "back", "arms", "legs", "apron", "stretchers", "column", "base", "footrest")
@@ -57,10 +57,9 @@ def _four_legs(style: dict, parts: dict) -> BackMount:
     yb = style["seat_height"] - t
     top_y = yb + min(0.01, t / 2)
     anchors = _leg_anchors(style, lt / 2 + 0.012)
-    spread = math.tan(math.radians(style["leg_splay_deg"])) * top_y
-    tops = np.array([[x, top_y, z] for x, z in anchors])
-    bottoms = np.array([[x + spread * x / math.hypot(x, z), 0.0, z + spread * z / math.hypot(x, z)] for x, z in anchors])
-    parts["legs"] = [rod(b, tp, lt, profile, taper=0.6 if profile == "tapered" else 1.0) for b, tp in zip(bottoms, tops)]
+    tops, bottoms = splayed_legs(anchors, top_y, style["leg_splay_deg"])
+    taper = 0.6 if profile == "tapered" else 1.0
+    parts["legs"] = [rod(b, tp, lt, profile, taper=taper) for b, tp in zip(bottoms, tops)]
 
     def on_leg(i: int, y: float) -> np.ndarray:
         return bottoms[i] + (tops[i] - bottoms[i]) * (y / top_y)
@@ -84,7 +83,7 @@ def _four_legs(style: dict, parts: dict) -> BackMount:
     return BackMount(x=float(anchors[3, 0]), z=float(anchors[3, 1]), posts=post, post_thickness=0.9 * lt)
 
 
-def _star_foot(style: dict, column_bottom: float) -> tuple[list[Primitive], float]:
+def _star_foot(style: dict) -> tuple[list[Primitive], float]:
     """Office-chair star: hub, spokes and caster balls. Returns (primitives, hub top height)."""
     rc = _CASTER_RADIUS
     hub_lo, hub_hi = 2 * rc - 0.005, 2 * rc + 0.05
@@ -103,7 +102,7 @@ def _pedestal(style: dict, parts: dict) -> BackMount:
     yb = style["seat_height"] - style["seat_thickness"]
     cr = style["column_radius"]
     if style["pedestal_foot"] == "star":
-        parts["base"], hub_top = _star_foot(style, yb)
+        parts["base"], hub_top = _star_foot(style)
         mid = hub_top + 0.45 * (yb - hub_top)
         parts["column"] = [
             CappedCone(a=(0, hub_top - 0.01, 0), b=(0, mid, 0), radius_a=1.5 * cr, radius_b=1.5 * cr),
@@ -111,7 +110,8 @@ def _pedestal(style: dict, parts: dict) -> BackMount:
         ]
     else:
         r, th = style["disc_radius"], 0.02
-        parts["base"] = [Slab(centre=(0, th / 2, 0), half_x=r, half_z=r, half_height=th / 2, profile="ellipse", edge_radius=0.006)]
+        disc = Slab(centre=(0, th / 2, 0), half_x=r, half_z=r, half_height=th / 2, profile="ellipse", edge_radius=0.006)
+        parts["base"] = [disc]
         parts["column"] = [CappedCone(a=(0, th / 2, 0), b=(0, yb + 0.005, 0), radius_a=2.2 * cr, radius_b=cr)]
     plate = min(0.09, 0.35 * style["seat_width"])
     parts["column"].append(Box(centre=(0, yb - 0.012, 0), half=(plate, 0.0125, plate), radius=0.004))
@@ -125,7 +125,8 @@ def _pedestal(style: dict, parts: dict) -> BackMount:
     if style["back"] == "none":
         return BackMount(x=0.0, z=0.0, posts=None, post_thickness=0.0)
     half = style["seat_width"] / 2 * (1.0 if style["arms"] else style["back_width_frac"])
-    return BackMount(x=half, z=-style["seat_depth"] / 2 - 0.015 - style["back_thickness"] / 2, posts=None, post_thickness=0.0)
+    behind_seat = -style["seat_depth"] / 2 - 0.015 - style["back_thickness"] / 2
+    return BackMount(x=half, z=behind_seat, posts=None, post_thickness=0.0)
 
 
 def _tube_frame(style: dict, parts: dict) -> BackMount:

@@ -21,3 +21,14 @@ def rod(a, b, thickness: float, profile: str, taper: float = 1.0) -> Primitive:
     if profile in ("round", "tapered"):
         return CappedCone(a=a, b=b, radius_a=thickness / 2 * taper, radius_b=thickness / 2)
     raise ValueError(f"unknown member profile {profile!r}; expected one of {MEMBER_PROFILES}")
+
+
+def splayed_legs(anchors: np.ndarray, top_y: float, splay_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """(tops [K,3], feet [K,3]) of legs from (x, z) anchors [K,2] at top_y, feet splayed outwards onto y = 0."""
+    spread = np.tan(np.radians(splay_deg)) * top_y
+    radial = anchors / np.linalg.norm(anchors, axis=1, keepdims=True)
+    tops = np.stack([anchors[:, 0], np.full(len(anchors), top_y), anchors[:, 1]], axis=1)
+    feet = np.stack(
+        [anchors[:, 0] + spread * radial[:, 0], np.zeros(len(anchors)), anchors[:, 1] + spread * radial[:, 1]], axis=1
+    )
+    return tops, feet

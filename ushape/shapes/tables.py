@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from ushape.shapes.members import rod
+from ushape.shapes.members import rod, splayed_legs
 from ushape.shapes.primitives import Box, CappedCone, Primitive, Slab
 
 PART_ORDER = ("top", "legs", "apron", "stretchers", "shelf", "column", "base")
@@ -63,10 +63,9 @@ def _four_legs(style: dict, parts: dict) -> None:
     under = style["table_height"] - style["top_thickness"]
     top_y = under + min(0.01, style["top_thickness"] / 2)
     anchors = _leg_anchors(style, lt / 2 + style["leg_inset"])
-    spread = math.tan(math.radians(style["leg_splay_deg"])) * top_y
-    tops = np.array([[x, top_y, z] for x, z in anchors])
-    bottoms = np.array([[x + spread * x / math.hypot(x, z), 0.0, z + spread * z / math.hypot(x, z)] for x, z in anchors])
-    parts["legs"] = [rod(b, t, lt, profile, taper=0.55 if profile == "tapered" else 1.0) for b, t in zip(bottoms, tops)]
+    tops, bottoms = splayed_legs(anchors, top_y, style["leg_splay_deg"])
+    taper = 0.55 if profile == "tapered" else 1.0
+    parts["legs"] = [rod(b, t, lt, profile, taper=taper) for b, t in zip(bottoms, tops)]
 
     def on_leg(i: int, y: float) -> np.ndarray:
         return bottoms[i] + (tops[i] - bottoms[i]) * (y / top_y)
@@ -75,7 +74,9 @@ def _four_legs(style: dict, parts: dict) -> None:
     if style["apron"]:
         h = style["apron_height"]
         y = under - h / 2 + 0.002
-        parts["apron"] = [Box.between(on_leg(i, y), on_leg(j, y), h, 0.022, hint=(0.0, 1.0, 0.0)) for i, j in _PAIRS["box"]]
+        parts["apron"] = [
+            Box.between(on_leg(i, y), on_leg(j, y), h, 0.022, hint=(0.0, 1.0, 0.0)) for i, j in _PAIRS["box"]
+        ]
     if style["stretchers"]:
         y, layout = style["stretcher_height"], style["stretcher_layout"]
         bars = [rod(on_leg(i, y), on_leg(j, y), 0.55 * lt, bar) for i, j in _PAIRS[layout]]
@@ -115,7 +116,9 @@ def _pedestal(style: dict, parts: dict) -> None:
     for x in xs:
         parts["column"].append(CappedCone(a=(x, 0.02, 0), b=(x, under + 0.005, 0), radius_a=bottom_r, radius_b=r))
         plate = min(0.2, 0.3 * style["top_width"])
-        parts["column"].append(Slab(centre=(x, under - 0.01, 0), half_x=plate, half_z=plate, half_height=0.01, profile="ellipse"))
+        parts["column"].append(
+            Slab(centre=(x, under - 0.01, 0), half_x=plate, half_z=plate, half_height=0.01, profile="ellipse")
+        )
         parts["base"] += _pedestal_foot(style, x)
     if n == 2 and style["stretchers"]:
         y = style["stretcher_height"]
@@ -149,7 +152,9 @@ def _trestle(style: dict, parts: dict) -> None:
         kind = style["trestle_upright"]
         y = (foot_h / 2 + under - cleat_h / 2) / 2 if kind == "x_legs" else style["stretcher_height"]
         zs = (-0.6 * half_foot, 0.6 * half_foot) if kind == "twin_posts" else (0.0,)
-        parts["stretchers"] = [Box.between((-x_end, y, z), (x_end, y, z), 0.08, 0.035, hint=(0.0, 1.0, 0.0)) for z in zs]
+        parts["stretchers"] = [
+            Box.between((-x_end, y, z), (x_end, y, z), 0.08, 0.035, hint=(0.0, 1.0, 0.0)) for z in zs
+        ]
 
 
 def build_table(style: dict) -> dict[str, list[Primitive]]:
