@@ -12,7 +12,7 @@ scale = 1.03 * largest distance of the surface from the centre, so the surface r
 SDF. `Shape.sdf` is the minimum of exact primitive SDFs: exact outside the shape, a lower bound on
 the depth inside, exact on the surface. `Shape.mesh(resolution)` runs marching cubes on that SDF
 near the surface only; the mesh is watertight with outward normals. No primitive is thinner than
-`MIN_THICKNESS` (0.03 normalised, about 3.8 cells of a 256 grid), so legs and slats survive.
+`MIN_THICKNESS` (0.03 normalised: at least 3.8 cells at resolution 256), so legs and slats survive.
 
 Parts (`Shape.part_names`, a subset in this order): chairs: seat, back, arms, legs, apron,
 stretchers, column, base, footrest; tables: top, legs, apron, stretchers, shelf, column, base.
