@@ -27,7 +27,7 @@ from ushape.data.shape_artifacts import ShapeFactory, ShapeJob, ShapeResult, bui
 
 log = logging.getLogger(__name__)
 
-GENERATOR_VERSION = 3
+GENERATOR_VERSION = 4  # 4: tables with attached shelves and twin-post trestle beams
 SPLIT_STREAMS = {"train": 0, "val": 1, "test": 2}
 
 
