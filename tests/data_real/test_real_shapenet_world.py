@@ -1,6 +1,5 @@
 """ShapeNetWorld preprocessing: layout, skipping broken models, idempotence, R2N2 renders and cameras."""
 
-import io
 import json
 
 import numpy as np

