@@ -115,3 +115,14 @@ def test_non_finite_vertices():
 def test_missing_model_file(tmp_path):
     with pytest.raises(MeshProcessingError, match="does not exist"):
         load_mesh(tmp_path / "absent.obj")
+
+
+def test_material_colours_become_face_colours(tmp_path):
+    (tmp_path / "model.mtl").write_text("newmtl red\nKd 1 0 0\n")
+    (tmp_path / "model.obj").write_text(
+        "mtllib model.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
+        "usemtl red\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+    )
+    mesh = load_mesh(tmp_path / "model.obj")
+    assert mesh.visual.kind == "face"
+    np.testing.assert_array_equal(mesh.visual.face_colors, np.tile([255, 0, 0, 255], (4, 1)))

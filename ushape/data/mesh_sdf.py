@@ -36,6 +36,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from ushape.data.sampling import sample_sdf
+from ushape.data.shading import DEFAULT_ALBEDO
 
 UNIT_SPHERE_BUFFER = 1.03  # DeepSDF: farthest vertex at 1/1.03 leaves room for the decoder's band
 RAY_CHUNK = 8192  # points per Embree batch: n_rays x this many rays stay ~100 MB
@@ -67,7 +68,10 @@ def load_mesh(path: str | Path) -> trimesh.Trimesh:
         faces.append(np.asarray(part.faces) + offset)
         offset += len(part.vertices)
     mesh = trimesh.Trimesh(np.concatenate(vertices), np.concatenate(faces), process=False)
-    if all(c is not None for c in colours):
+    if any(c is not None for c in colours):
+        # Parts without a material get the renderer's neutral grey rather than dropping all colour.
+        grey = np.array([*np.round(np.asarray(DEFAULT_ALBEDO) * 255), 255], np.uint8)
+        colours = [np.tile(grey, (len(p.faces), 1)) if c is None else c for c, p in zip(colours, parts)]
         mesh.visual = trimesh.visual.ColorVisuals(mesh, face_colors=np.concatenate(colours))
     check_mesh(mesh, str(path))
     return mesh

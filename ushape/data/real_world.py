@@ -213,7 +213,12 @@ def write_model_views(job: ModelJob, mesh: trimesh.Trimesh) -> None:
         rgba, masks = ours["rgba"], ours["mask"]
     else:
         masks = rgba[..., 3] > 0
-        extra["r2n2_mask_iou"] = np.float32(shapenet_rendering.render_agreement(masks, ours["mask"]))
+        iou = shapenet_rendering.render_agreement(masks, ours["mask"])
+        if iou < 0.5:
+            log.warning("%s: R2N2 images overlap our renders through their cameras by IoU %.2f only; the "
+                        "model's frame may differ from ShapeNet v1's (see ushape.data.shapenet_rendering)",
+                        job.model_id, iou)
+        extra["r2n2_mask_iou"] = np.float32(iou)
     for view in range(n_views):
         buffer = io.BytesIO()
         Image.fromarray(rgba[view], mode="RGBA").save(buffer, format="PNG")
