@@ -31,7 +31,7 @@ from tqdm.auto import tqdm
 
 from ushape import atomic
 from ushape.data import integrity, shapenet, shapenet_rendering
-from ushape.data.cameras import format_metadata, metadata_to_cameras, parse_metadata, sample_r2n2_views
+from ushape.data.cameras import format_metadata, parse_metadata, sample_r2n2_views
 from ushape.data.layout import SPLITS, WorldIndex
 from ushape.data.mesh_sdf import MeshProcessingError, load_mesh, normalise_mesh, sample_mesh_sdf
 from ushape.data.rendering import render_views
@@ -206,7 +206,7 @@ def write_model_views(job: ModelJob, mesh: trimesh.Trimesh) -> None:
     centre, scale = r2n2_frame(mesh)
     # R2N2's files store 25 in the fov column, which is not the lens it rendered with; ours store
     # the true one. Either way the protocol's lens is right (see ushape.data.cameras).
-    Ks, world_to_cams = metadata_to_cameras(parse_metadata(text), size, r2n2_centre=centre, r2n2_scale=scale)
+    Ks, world_to_cams = shapenet_rendering.model_cameras(parse_metadata(text), mesh, size)
     ours = render_views(mesh, Ks, world_to_cams, size)
     extra = {}
     if rgba is None:
