@@ -15,7 +15,8 @@ def _cfg(tmp_path: Path, **over):
         {
             "seed": 1,
             "category": {"name": "chairs"},
-            "data": {"n_train": 4, "num_workers": 0, "root": str(tmp_path / "data")},
+            "data": {"_target_": "ushape.data.world.SyntheticWorld", "n_train": 4, "num_workers": 0,
+                     "root": str(tmp_path / "data")},
             "decoder": {"_target_": "x", "hidden_dims": [8]},
             "stage1": {"epochs": 3},
             "paths": {"decoders_dir": str(tmp_path / "decoders")},
@@ -42,6 +43,10 @@ def test_reuse_and_identity(tmp_path):
     other = decoder_dir_for(_cfg(tmp_path, decoder={"hidden_dims": [16]}))
     assert other != first
     assert decoder_dir_for(_cfg(tmp_path, category={"name": "tables"})) != first
+    # The synthetic world's cache location does not change it; a real dataset's root does.
+    assert decoder_dir_for(_cfg(tmp_path, data={"root": "/elsewhere"})) == first
+    real = {"_target_": "ushape.data.real_world.ShapeNetWorld", "root": "/data/a"}
+    assert decoder_dir_for(_cfg(tmp_path, data=real)) != decoder_dir_for(_cfg(tmp_path, data={**real, "root": "/data/b"}))
 
 
 def test_unfinished_training_is_an_error_not_a_reusable_folder(tmp_path):

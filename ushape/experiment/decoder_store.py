@@ -21,13 +21,19 @@ from ushape.decoder.artifacts import DONE_FILE
 
 log = logging.getLogger(__name__)
 
-# Settings that change the decoder; anything else (logging, workers, the trainer's device) does not.
-_IGNORED_DATA_KEYS = {"num_workers", "root"}
+# The synthetic world is fully determined by its generating config, wherever it is cached; a real
+# dataset's root *is* its content (3 sample chairs vs all of ShapeNet), so it stays in the identity.
+_SYNTHETIC_TARGET = "ushape.data.world.SyntheticWorld"
 
 
 def decoder_identity(cfg: DictConfig) -> dict[str, Any]:
-    """The part of the config that determines the stage-1 decoder."""
-    data = {k: v for k, v in OmegaConf.to_container(cfg.data, resolve=True).items() if k not in _IGNORED_DATA_KEYS}
+    """The part of the config that determines the stage-1 decoder (not logging, workers or device)."""
+    data = OmegaConf.to_container(cfg.data, resolve=True)
+    data.pop("num_workers", None)
+    if data.get("_target_") == _SYNTHETIC_TARGET:
+        data.pop("root", None)
+    elif data.get("root") is not None:
+        data["root"] = str(Path(data["root"]).resolve())
     return {
         "category": cfg.category.name,
         "data": data,
