@@ -1,0 +1,104 @@
+"""The auto-decoder module: code table, training, resuming, and the finished stage-1 folder."""
+
+import json
+
+import pytest
+import torch
+import lightning as L
+
+from ushape.decoder.artifacts import load_codes, load_decoder
+from ushape.decoder.autodecoder import AutoDecoderModule
+from ushape.decoder.datamodule import SDFDataModule
+from ushape.decoder.fit import fit_decoder
+from ushape.decoder.losses import clamped_l1
+from ushape.decoder.query import code_sdf_fn
+
+from conftest import FAST_TRAINER, SPLITS
+
+
+def test_codes_start_at_deepsdf_scale(tiny_decoder_config):
+    module = AutoDecoderModule(decoder={**tiny_decoder_config, "latent_size": 64, "hidden_dims": [128, 128, 128]}, num_shapes=2000, latent_size=64)
+    assert module.codes.weight.std().item() == pytest.approx(1 / 8, rel=0.03)
+    assert module.codes.weight.mean().abs().item() < 0.01
+
+
+def test_code_max_norm_bounds_lookups_and_export(tiny_decoder_config):
+    module = AutoDecoderModule(decoder=tiny_decoder_config, num_shapes=3, latent_size=8, code_max_norm=1.0)
+    with torch.no_grad():
+        module.codes.weight[1] = 5.0 * torch.ones(8) / 8**0.5  # norm 5
+    bounded = module.bounded_codes()
+    assert bounded[1].norm().item() == pytest.approx(1.0, abs=1e-5)
+    assert torch.equal(bounded[0], module.codes.weight[0])
+    looked_up = module.codes(torch.tensor([1]))[0]
+    assert looked_up.norm().item() == pytest.approx(1.0, abs=1e-5)
+    assert torch.allclose(looked_up, bounded[1], atol=1e-6)
+
+
+def test_decoder_latent_size_must_match(tiny_decoder_config):
+    with pytest.raises(ValueError, match="latent_size"):
+        AutoDecoderModule(decoder=tiny_decoder_config, num_shapes=3, latent_size=16)
+
+
+@pytest.mark.parametrize("bf16", [False, True])
+def test_training_reduces_the_loss(sphere_world, tiny_decoder_config, bf16):
+    L.seed_everything(0)
+    dm = SDFDataModule(sphere_world, samples_per_shape=512, shapes_per_batch=4)
+    module = AutoDecoderModule(decoder=tiny_decoder_config, num_shapes=dm.num_shapes, latent_size=8,
+                               lr_net=3e-3, lr_codes=1e-2, bf16=bf16)
+    batch = next(iter(dm.train_dataloader()))
+
+    def loss() -> float:
+        with torch.no_grad():
+            return clamped_l1(module(batch["xyz"], batch["index"]), batch["sdf"], 0.1).item()
+
+    before = loss()
+    trainer = L.Trainer(**FAST_TRAINER, max_epochs=40, logger=False, enable_checkpointing=False, limit_val_batches=0)
+    trainer.fit(module, datamodule=dm)
+    assert loss() < 0.7 * before
+
+
+def test_resume_continues_the_epoch_count(sphere_world, tiny_decoder_config, tmp_path):
+    kwargs = dict(module={"latent_size": 8, "val_every_n_epochs": 100}, data={"samples_per_shape": 64, "shapes_per_batch": 2},
+                  latent_optim={"iterations": 2, "samples_per_iter": 16}, checkpoint_every_n_epochs=1, logger=False)
+    out = fit_decoder(sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 2}, **kwargs)
+    assert json.loads((out / "DONE").read_text())["epochs"] == 2
+    (out / "DONE").unlink()  # as if the run had stopped before finishing
+    fit_decoder(sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 3}, **kwargs)
+    last = torch.load(out / "checkpoints" / "last.ckpt", weights_only=False)
+    assert last["epoch"] == 3 and last["global_step"] == 3 * 2  # 4 shapes / 2 per batch = 2 steps per epoch
+    assert json.loads((out / "DONE").read_text())["epochs"] == 3
+    rebuilt = AutoDecoderModule.load_from_checkpoint(out / "checkpoints" / "last.ckpt")
+    assert rebuilt.codes.num_embeddings == 4
+
+
+def zero_crossing_radius(decoder, code) -> float:
+    """Radius where the decoder's SDF along +x changes sign (the spheres are centred)."""
+    sdf = code_sdf_fn(decoder, code)
+    radii = torch.linspace(0.0, 0.95, 951)
+    values = sdf(torch.stack([radii, torch.zeros_like(radii), torch.zeros_like(radii)], dim=1))
+    return radii[int(torch.nonzero(values > 0)[0])].item()
+
+
+def test_fitted_folder_is_complete_and_recovers_radii(fitted_sphere_folder):
+    folder = fitted_sphere_folder
+    assert (folder / "DONE").exists() and (folder / "checkpoints" / "last.ckpt").exists()
+    decoder = load_decoder(folder)
+    train, val, test = (load_codes(folder / f"codes_{s}.pt") for s in ("train", "val", "test"))
+    assert train.shape_ids == list(SPLITS["train"]) and train.codes.shape == (4, 8)
+    for table, split in ((train, "train"), (val, "val"), (test, "test")):
+        for shape_id, radius in SPLITS[split].items():
+            # val/test codes come from latent optimisation of shapes the decoder never saw.
+            assert zero_crossing_radius(decoder, table.lookup(shape_id)) == pytest.approx(radius, abs=0.03)
+
+
+def test_fit_logs_training_and_validation(fitted_sphere_folder):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    events = EventAccumulator(str(fitted_sphere_folder / "tensorboard"), size_guidance={"images": 0})
+    events.Reload()
+    scalars = set(events.Tags()["scalars"])
+    assert {"train/loss", "train/sdf_loss", "train/code_reg", "train/lr_net", "train/lr_codes",
+            "train/code_norm_mean", "train/code_norm_max", "val/chamfer", "val/iou"} <= scalars
+    assert events.Scalars("val/iou")[-1].value > 0.8
+    assert events.Scalars("val/chamfer")[-1].value < 2e-3
+    assert "val/mesh/r60" in events.Tags()["images"]

@@ -1,0 +1,122 @@
+"""Stage 1 end to end: train the auto-decoder, then fill a decoder folder (see `artifacts`).
+
+Resumable: an interrupted run restarts from `checkpoints/last.ckpt`, and the folder is marked
+complete (`DONE`) only after the decoder and all three code tables are written.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import lightning as L
+from lightning.pytorch.callbacks import Callback, ModelCheckpoint
+from lightning.pytorch.loggers import Logger, TensorBoardLogger
+
+from ushape import atomic
+from ushape.data.sdf_dataset import SDFSamplesDataset
+from ushape.decoder.artifacts import CHECKPOINT_DIR, DECODER_FILE, DONE_FILE, CodeTable, codes_file, save_codes, save_decoder
+from ushape.decoder.autodecoder import AutoDecoderModule
+from ushape.decoder.datamodule import SDFDataModule
+from ushape.decoder.latent_optim import optimise_codes
+
+log = logging.getLogger(__name__)
+
+LAST_CHECKPOINT = "last.ckpt"
+
+
+def fit_decoder(
+    world_root: str | Path,
+    out_dir: str | Path,
+    decoder: Mapping[str, Any],
+    module: Mapping[str, Any] | None = None,
+    trainer: Mapping[str, Any] | None = None,
+    data: Mapping[str, Any] | None = None,
+    latent_optim: Mapping[str, Any] | None = None,
+    checkpoint_every_n_epochs: int = 10,
+    seed: int = 0,
+    logger: Logger | bool | None = None,
+    callbacks: Sequence[Callback] = (),
+) -> Path:
+    """Train stage 1 on the world's train split and write the decoder folder `out_dir`; returns it.
+
+    decoder: `_target_` config of the network; module: AutoDecoderModule kwargs (num_shapes is
+    filled from the data); trainer: lightning.Trainer kwargs (max_epochs, accelerator, ...);
+    data: SDFDataModule kwargs; latent_optim: `optimise_codes` kwargs for the val/test codes.
+    logger None means TensorBoard under out_dir/tensorboard; False logs nothing.
+    """
+    out_dir = Path(out_dir)
+    if (out_dir / DONE_FILE).exists():
+        log.info("%s is complete (%s exists); nothing to do", out_dir, DONE_FILE)
+        return out_dir
+    started = time.time()
+    datamodule = SDFDataModule(world_root, **dict(data or {}))
+    model = build_module(decoder, module, datamodule.num_shapes)
+    fitter = build_trainer(out_dir, model, trainer, checkpoint_every_n_epochs, logger, callbacks)
+    L.seed_everything(seed, workers=True)
+    last = out_dir / CHECKPOINT_DIR / LAST_CHECKPOINT
+    fitter.fit(model, datamodule=datamodule, ckpt_path=str(last) if last.exists() else None)
+    if fitter.interrupted:
+        raise RuntimeError(f"stage-1 training was interrupted; rerun to resume from {last}")
+    train_seconds = time.time() - started
+
+    model.cpu().eval()
+    save_decoder(out_dir / DECODER_FILE, model.decoder, model.decoder_config)
+    save_codes(out_dir / codes_file("train"), CodeTable(datamodule.train_set.shape_ids, model.bounded_codes()))
+    for split in ("val", "test"):
+        save_codes(out_dir / codes_file(split), reconstruct_split(model, world_root, split, latent_optim))
+    atomic.write_json(out_dir / DONE_FILE, {
+        "epochs": fitter.current_epoch,
+        "train_seconds": round(train_seconds, 1),
+        "total_seconds": round(time.time() - started, 1),
+    })
+    return out_dir
+
+
+def build_module(decoder: Mapping[str, Any], module: Mapping[str, Any] | None, num_shapes: int) -> AutoDecoderModule:
+    """The auto-decoder for `num_shapes` training shapes; a configured num_shapes must agree."""
+    kwargs = dict(module or {})
+    configured = kwargs.pop("num_shapes", None)
+    if configured is not None and configured != num_shapes:
+        raise ValueError(f"module.num_shapes={configured} but the train split has {num_shapes} shapes; drop the key")
+    return AutoDecoderModule(decoder=dict(decoder), num_shapes=num_shapes, **kwargs)
+
+
+def build_trainer(
+    out_dir: Path,
+    model: AutoDecoderModule,
+    trainer: Mapping[str, Any] | None,
+    checkpoint_every_n_epochs: int,
+    logger: Logger | bool | None,
+    callbacks: Sequence[Callback],
+) -> L.Trainer:
+    """Trainer that checkpoints into out_dir/checkpoints (last.ckpt resumes) and validates every
+    `model.hparams.val_every_n_epochs`; keys in `trainer` override these defaults."""
+    checkpoint = ModelCheckpoint(
+        dirpath=out_dir / CHECKPOINT_DIR, every_n_epochs=checkpoint_every_n_epochs, save_last=True, save_top_k=1
+    )
+    if logger is None:
+        logger = TensorBoardLogger(save_dir=str(out_dir), name="tensorboard", version="", default_hp_metric=False)
+    kwargs = {
+        "default_root_dir": str(out_dir),
+        "check_val_every_n_epoch": model.hparams.val_every_n_epochs,
+        # An untrained decoder has no surface to validate; the first real validation says more.
+        "num_sanity_val_steps": 0,
+        **dict(trainer or {}),
+    }
+    return L.Trainer(logger=logger, callbacks=[checkpoint, *callbacks], **kwargs)
+
+
+def reconstruct_split(
+    model: AutoDecoderModule, world_root: str | Path, split: str, latent_optim: Mapping[str, Any] | None
+) -> CodeTable:
+    """Codes of a held-out split by latent optimisation against the frozen decoder."""
+    shapes = SDFSamplesDataset(world_root, split, samples_per_shape=2)  # optimise_codes draws its own
+    if len(shapes) == 0:
+        return CodeTable([], model.bounded_codes()[:0])
+    started = time.time()
+    codes = optimise_codes(model.decoder, shapes, **dict(latent_optim or {}))
+    log.info("latent-optimised %d %s codes in %.1f s", len(shapes), split, time.time() - started)
+    return CodeTable(shapes.shape_ids, codes)

@@ -1,0 +1,110 @@
+"""Codes of unseen shapes with the decoder frozen (DeepSDF's reconstruct.py), many shapes at once.
+
+Per shape and iteration, as DeepSDF: draw `samples_per_iter` SDF samples (half sdf >= 0, half
+sdf < 0), minimise mean clamped L1 + code_reg * mean(z^2) with Adam, start from N(0, init_std^2),
+divide the learning rate by 10 at `lr_drop_at`. Shapes are independent: the batch loss is the sum
+of per-shape losses, so each code gets the gradient it would get alone.
+"""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from typing import Iterator, Sequence
+
+import torch
+from torch import Tensor, nn
+
+from ushape.data.sdf_dataset import SDFSamplesDataset
+from ushape.decoder.losses import code_prior
+from ushape.decoder.query import decoder_autocast
+
+SampleSource = Sequence[tuple[Tensor, Tensor]] | SDFSamplesDataset
+
+
+def optimise_codes(
+    decoder: nn.Module,
+    sdf_samples: SampleSource,
+    iterations: int = 800,
+    lr: float = 5e-3,
+    lr_drop_at: int = 400,
+    samples_per_iter: int = 8000,
+    code_reg: float = 1e-4,
+    clamp: float = 0.1,
+    init_std: float = 0.01,
+    bf16: bool = False,
+    seed: int = 0,
+) -> Tensor:
+    """Latent codes fitting each shape's SDF samples under the frozen decoder. -> [S, D]
+
+    sdf_samples: a list of (xyz [N, 3], sdf [N]) per shape, or an SDFSamplesDataset (all its samples).
+    """
+    pos, pos_count, neg, neg_count = _padded_by_sign(sdf_samples)
+    device = next(decoder.parameters()).device
+    pos, pos_count, neg, neg_count = (t.to(device) for t in (pos, pos_count, neg, neg_count))
+    generator = torch.Generator(device="cpu").manual_seed(seed)
+    num_shapes, latent_size = pos.shape[0], decoder.latent_size
+    codes = (torch.randn(num_shapes, latent_size, generator=generator) * init_std).to(device).requires_grad_(True)
+    optimiser = torch.optim.Adam([codes], lr=lr)
+    n_pos = samples_per_iter - samples_per_iter // 2
+    with _frozen(decoder):
+        for step in range(iterations):
+            if step == lr_drop_at:
+                for group in optimiser.param_groups:
+                    group["lr"] = lr / 10
+            rows = torch.cat([_draw(pos, pos_count, n_pos, generator), _draw(neg, neg_count, samples_per_iter - n_pos, generator)], dim=1)
+            with decoder_autocast(device, bf16):
+                pred = decoder(rows[..., :3], codes[:, None, :])  # [S, K]
+            target = rows[..., 3].clamp(-clamp, clamp)
+            per_shape = (pred.float().clamp(-clamp, clamp) - target).abs().mean(dim=1) + code_prior(codes, code_reg)
+            optimiser.zero_grad(set_to_none=True)
+            per_shape.sum().backward()
+            optimiser.step()
+    return codes.detach().cpu()
+
+
+@contextmanager
+def _frozen(decoder: nn.Module) -> Iterator[None]:
+    """Eval mode (no dropout) and no parameter gradients, restored on exit."""
+    was_training = decoder.training
+    flags = [p.requires_grad for p in decoder.parameters()]
+    decoder.eval()
+    decoder.requires_grad_(False)
+    try:
+        yield
+    finally:
+        for p, flag in zip(decoder.parameters(), flags):
+            p.requires_grad_(flag)
+        decoder.train(was_training)
+
+
+def _padded_by_sign(source: SampleSource) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Per-shape samples split by sign, zero-padded: (pos [S, P, 4], counts [S], neg [S, Q, 4], counts [S])."""
+    if isinstance(source, SDFSamplesDataset):
+        pairs = [source.samples(i) for i in range(len(source))]
+    else:
+        pairs = [_split_by_sign(xyz, sdf, i) for i, (xyz, sdf) in enumerate(source)]
+    if not pairs:
+        raise ValueError("no shapes given to optimise codes for")
+    pos = nn.utils.rnn.pad_sequence([p for p, _ in pairs], batch_first=True)
+    neg = nn.utils.rnn.pad_sequence([n for _, n in pairs], batch_first=True)
+    counts = [torch.tensor([len(t) for t in side]) for side in zip(*pairs)]
+    return pos, counts[0], neg, counts[1]
+
+
+def _split_by_sign(xyz: Tensor, sdf: Tensor, index: int) -> tuple[Tensor, Tensor]:
+    """(rows with sdf >= 0, rows with sdf < 0), rows (x, y, z, sdf) [N, 4]."""
+    xyz, sdf = torch.as_tensor(xyz, dtype=torch.float32), torch.as_tensor(sdf, dtype=torch.float32).reshape(-1)
+    if xyz.ndim != 2 or xyz.shape[1] != 3 or xyz.shape[0] != sdf.shape[0]:
+        raise ValueError(f"shape {index}: expected xyz [N, 3] and sdf [N], got {tuple(xyz.shape)} and {tuple(sdf.shape)}")
+    rows = torch.cat([xyz, sdf[:, None]], dim=1)
+    pos, neg = rows[sdf >= 0], rows[sdf < 0]
+    if len(pos) == 0 or len(neg) == 0:
+        raise ValueError(f"shape {index}: needs samples both outside (sdf >= 0) and inside (sdf < 0) the surface")
+    return pos, neg
+
+
+def _draw(padded: Tensor, counts: Tensor, k: int, generator: torch.Generator) -> Tensor:
+    """k rows per shape drawn with replacement from its first counts[s] rows. [S, P, 4] -> [S, k, 4]"""
+    u = torch.rand(padded.shape[0], k, generator=generator).to(padded.device)
+    idx = (u * counts[:, None]).long().clamp(max=padded.shape[1] - 1)
+    return torch.gather(padded, 1, idx[..., None].expand(-1, -1, padded.shape[2]))

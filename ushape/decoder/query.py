@@ -1,0 +1,29 @@
+"""A trained decoder and one latent code as an SDF callable over points in the normalised frame."""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import torch
+from torch import Tensor, nn
+
+
+def decoder_autocast(device: torch.device | str, enabled: bool) -> torch.autocast:
+    """bf16 autocast for a decoder forward on `device` (CPU AMX/AVX-512 or CUDA); a no-op if disabled."""
+    device_type = torch.device(device).type
+    return torch.autocast(device_type=device_type, dtype=torch.bfloat16, enabled=enabled)
+
+
+def code_sdf_fn(decoder: nn.Module, code: Tensor, bf16: bool = False) -> Callable[[Tensor], Tensor]:
+    """points [P, 3] -> sdf [P] (float32, on the points' device) of the decoder at code [D]."""
+    if code.ndim != 1:
+        raise ValueError(f"code must be one latent vector [D], got {tuple(code.shape)}")
+    device = next(decoder.parameters()).device
+    code = code.detach().to(device)
+
+    def sdf(points: Tensor) -> Tensor:
+        with torch.no_grad(), decoder_autocast(device, bf16):
+            values = decoder(points.to(device), code)
+        return values.float().to(points.device)
+
+    return sdf

@@ -1,0 +1,1 @@
+"""Meshes from SDFs: marching cubes (dense and coarse-to-fine) in the normalised frame."""

@@ -1,0 +1,1 @@
+"""Reconstruction metrics: DeepSDF's Chamfer distance and volumetric IoU."""
