@@ -1,0 +1,83 @@
+"""Marching cubes on analytic SDFs: grid convention, dense vs coarse-to-fine, empty surfaces."""
+
+import numpy as np
+import pytest
+import torch
+
+from ushape.mesh.extraction import EmptySurfaceError, extract_mesh, grid_coordinates, sdf_grid
+
+
+def sphere(radius, centre=(0.0, 0.0, 0.0)):
+    c = torch.tensor(centre)
+    return lambda p: (p - c).norm(dim=-1) - radius
+
+
+def box(half_extents, centre=(0.0, 0.0, 0.0)):
+    h, c = torch.tensor(half_extents), torch.tensor(centre)
+
+    def sdf(p):
+        q = (p - c).abs() - h
+        return q.clamp(min=0).norm(dim=-1) + q.max(dim=-1).values.clamp(max=0)
+
+    return sdf
+
+
+def chair_like(p):
+    """A seat, a back and four thin legs: the thin parts are what coarse grids miss."""
+    parts = [box((0.4, 0.03, 0.4), (0, 0, 0)), box((0.4, 0.4, 0.03), (0, 0.43, -0.37))]
+    parts += [box((0.02, 0.3, 0.02), (x, -0.33, z)) for x in (-0.37, 0.37) for z in (-0.37, 0.37)]
+    return torch.stack([part(p) for part in parts]).min(dim=0).values
+
+
+def test_grid_points_include_both_faces_of_the_cube():
+    axis = grid_coordinates(5)
+    assert torch.allclose(axis, torch.tensor([-1.0, -0.5, 0.0, 0.5, 1.0]))
+
+
+def test_sdf_grid_indexes_x_y_z():
+    grid = sdf_grid(lambda p: p[:, 0] + 10 * p[:, 1] + 100 * p[:, 2], 3)
+    assert grid[2, 0, 0] == pytest.approx(1 - 10 - 100)
+    assert grid[0, 2, 1] == pytest.approx(-1 + 10)
+
+
+@pytest.mark.parametrize("method", ["dense", "coarse_to_fine"])
+def test_sphere_vertices_lie_on_the_sphere(method):
+    mesh, _ = extract_mesh(sphere(0.5, (0.1, -0.2, 0.05)), resolution=64, method=method)
+    radii = np.linalg.norm(mesh.vertices - np.array([0.1, -0.2, 0.05]), axis=1)
+    voxel = 2 / 63
+    assert np.abs(radii - 0.5).max() < 0.05 * voxel  # no half-voxel offset
+    assert mesh.is_watertight and mesh.volume == pytest.approx(4 / 3 * np.pi * 0.125, rel=0.01)
+
+
+def test_box_faces_land_where_the_box_is():
+    mesh, _ = extract_mesh(box((0.3, 0.2, 0.5), (0.1, 0.0, -0.1)), resolution=64, method="dense")
+    lo, hi = mesh.bounds
+    assert np.allclose(lo, [-0.2, -0.2, -0.6], atol=0.02) and np.allclose(hi, [0.4, 0.2, 0.4], atol=0.02)
+
+
+@pytest.mark.parametrize("sdf_fn", [sphere(0.55), chair_like], ids=["sphere", "chair_like"])
+def test_coarse_to_fine_gives_the_dense_mesh_with_far_fewer_evaluations(sdf_fn):
+    dense, dense_stats = extract_mesh(sdf_fn, resolution=128, method="dense")
+    fast, fast_stats = extract_mesh(sdf_fn, resolution=128, method="coarse_to_fine")
+    assert dense_stats.evaluations == 128**3
+    assert fast.vertices.shape == dense.vertices.shape
+    assert np.abs(fast.vertices - dense.vertices).max() < 1e-6
+    assert np.array_equal(fast.faces, dense.faces)
+    assert fast_stats.saving >= 10
+
+
+def test_no_zero_crossing_raises_empty_surface_error():
+    for method in ("dense", "coarse_to_fine"):
+        with pytest.raises(EmptySurfaceError, match="no surface"):
+            extract_mesh(lambda p: p.norm(dim=-1) + 0.1, resolution=32, method=method)
+    assert issubclass(EmptySurfaceError, ValueError)
+
+
+def test_numpy_returning_sdf_is_accepted():
+    mesh, _ = extract_mesh(lambda p: np.linalg.norm(p.numpy(), axis=1) - 0.5, resolution=32, method="dense")
+    assert len(mesh.faces) > 0
+
+
+def test_unknown_method_is_rejected():
+    with pytest.raises(ValueError, match="dense"):
+        extract_mesh(sphere(0.5), resolution=16, method="octree")
