@@ -52,10 +52,10 @@ def fit_decoder(
         log.info("%s is complete (%s exists); nothing to do", out_dir, DONE_FILE)
         return out_dir
     started = time.time()
+    L.seed_everything(seed, workers=True)  # before the module exists: its weights and codes are drawn at init
     datamodule = SDFDataModule(world_root, **dict(data or {}))
     model = build_module(decoder, module, datamodule.num_shapes)
     fitter = build_trainer(out_dir, model, trainer, checkpoint_every_n_epochs, logger, callbacks)
-    L.seed_everything(seed, workers=True)
     last = out_dir / CHECKPOINT_DIR / LAST_CHECKPOINT
     fitter.fit(model, datamodule=datamodule, ckpt_path=str(last) if last.exists() else None)
     if fitter.interrupted:

@@ -1,0 +1,48 @@
+"""Latent optimisation against a frozen decoder, and meshing a trained decoder's codes."""
+
+import numpy as np
+import pytest
+import torch
+
+from ushape.decoder.artifacts import load_codes, load_decoder
+from ushape.decoder.latent_optim import optimise_codes
+from ushape.decoder.query import code_sdf_fn
+from ushape.mesh.extraction import extract_mesh
+
+from conftest import sphere_samples
+
+
+def test_recovers_held_out_spheres_from_sample_lists(fitted_sphere_folder):
+    decoder = load_decoder(fitted_sphere_folder, frozen=False)
+    rng = np.random.default_rng(5)
+    shapes = []
+    for radius in (0.35, 0.55):
+        pos, neg = sphere_samples(radius, 3000, rng)
+        rows = torch.from_numpy(np.concatenate([pos, neg]))
+        shapes.append((rows[:, :3], rows[:, 3]))
+    before = [p.detach().clone() for p in decoder.parameters()]
+    codes = optimise_codes(decoder, shapes, iterations=200, lr_drop_at=150, samples_per_iter=2000)
+    assert codes.shape == (2, 8)
+    for code, radius in zip(codes, (0.35, 0.55)):
+        mesh, _ = extract_mesh(code_sdf_fn(decoder, code), resolution=48)
+        assert np.linalg.norm(mesh.vertices, axis=1).mean() == pytest.approx(radius, abs=0.03)
+    # The decoder stayed frozen and gets its training mode and grad flags back.
+    assert all(torch.equal(a, b) for a, b in zip(before, decoder.parameters()))
+    assert decoder.training and all(p.requires_grad and p.grad is None for p in decoder.parameters())
+
+
+def test_samples_need_both_signs(fitted_sphere_folder):
+    decoder = load_decoder(fitted_sphere_folder)
+    xyz = torch.rand(10, 3) + 2.0
+    with pytest.raises(ValueError, match="inside"):
+        optimise_codes(decoder, [(xyz, xyz.norm(dim=1))], iterations=1)
+
+
+def test_trained_decoder_mesh_is_the_same_coarse_to_fine(fitted_sphere_folder):
+    decoder = load_decoder(fitted_sphere_folder)
+    code = load_codes(fitted_sphere_folder / "codes_train.pt").lookup("r40")
+    dense, _ = extract_mesh(code_sdf_fn(decoder, code), resolution=96, method="dense")
+    fast, stats = extract_mesh(code_sdf_fn(decoder, code), resolution=96, method="coarse_to_fine")
+    assert fast.vertices.shape == dense.vertices.shape and np.array_equal(fast.faces, dense.faces)
+    assert np.abs(fast.vertices - dense.vertices).max() < 1e-6
+    assert stats.saving > 5
