@@ -57,15 +57,27 @@ def test_training_reduces_the_loss(sphere_world, tiny_decoder_config, bf16):
     assert loss() < 0.7 * before
 
 
+class EpochCounter(L.Callback):
+    def __init__(self):
+        self.started = []
+
+    def on_train_epoch_start(self, trainer, pl_module):
+        self.started.append(trainer.current_epoch)
+
+
 def test_resume_continues_the_epoch_count(sphere_world, tiny_decoder_config, tmp_path):
-    kwargs = dict(module={"latent_size": 8, "val_every_n_epochs": 100}, data={"samples_per_shape": 64, "shapes_per_batch": 2},
+    kwargs = dict(module={"latent_size": 8, "val_every_n_epochs": 5}, data={"samples_per_shape": 64, "shapes_per_batch": 2},
                   latent_optim={"iterations": 2, "samples_per_iter": 16}, checkpoint_every_n_epochs=1, logger=False)
     out = fit_decoder(sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 2}, **kwargs)
-    assert json.loads((out / "DONE").read_text())["epochs"] == 2
-    (out / "DONE").unlink()  # as if the run had stopped before finishing
-    fit_decoder(sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 3}, **kwargs)
     last = torch.load(out / "checkpoints" / "last.ckpt", weights_only=False)
-    assert last["epoch"] == 3 and last["global_step"] == 3 * 2  # 4 shapes / 2 per batch = 2 steps per epoch
+    assert last["epoch"] == 1 and last["global_step"] == 2 * 2  # 4 shapes / 2 per batch = 2 steps per epoch
+    (out / "DONE").unlink()  # as if the run had stopped before finishing
+    counter = EpochCounter()
+    fit_decoder(sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 3},
+                callbacks=[counter], **kwargs)
+    assert counter.started == [2]  # only the missing third epoch ran
+    last = torch.load(out / "checkpoints" / "last.ckpt", weights_only=False)
+    assert last["epoch"] == 2 and last["global_step"] == 3 * 2
     assert json.loads((out / "DONE").read_text())["epochs"] == 3
     rebuilt = AutoDecoderModule.load_from_checkpoint(out / "checkpoints" / "last.ckpt")
     assert rebuilt.codes.num_embeddings == 4

@@ -94,8 +94,14 @@ def build_trainer(
 ) -> L.Trainer:
     """Trainer that checkpoints into out_dir/checkpoints (last.ckpt resumes) and validates every
     `model.hparams.val_every_n_epochs`; keys in `trainer` override these defaults."""
+    # Saved at train-epoch end: Lightning otherwise ties saving to validation epochs when
+    # check_val_every_n_epoch > 1, and a long run would have nothing to resume from.
     checkpoint = ModelCheckpoint(
-        dirpath=out_dir / CHECKPOINT_DIR, every_n_epochs=checkpoint_every_n_epochs, save_last=True, save_top_k=1
+        dirpath=out_dir / CHECKPOINT_DIR,
+        every_n_epochs=checkpoint_every_n_epochs,
+        save_last=True,
+        save_top_k=1,
+        save_on_train_epoch_end=True,
     )
     if logger is None:
         logger = TensorBoardLogger(save_dir=str(out_dir), name="tensorboard", version="", default_hp_metric=False)

@@ -51,7 +51,10 @@ def optimise_codes(
             if step == lr_drop_at:
                 for group in optimiser.param_groups:
                     group["lr"] = lr / 10
-            rows = torch.cat([_draw(pos, pos_count, n_pos, generator), _draw(neg, neg_count, samples_per_iter - n_pos, generator)], dim=1)
+            rows = torch.cat([  # [S, K, 4]
+                _draw(pos, pos_count, n_pos, generator),
+                _draw(neg, neg_count, samples_per_iter - n_pos, generator),
+            ], dim=1)
             with decoder_autocast(device, bf16):
                 pred = decoder(rows[..., :3], codes[:, None, :])  # [S, K]
             target = rows[..., 3].clamp(-clamp, clamp)
