@@ -60,3 +60,10 @@ def test_chamfer_is_reproducible_with_a_seed():
 def test_chamfer_rejects_an_empty_mesh():
     with pytest.raises(ValueError, match="no faces"):
         chamfer_deepsdf(trimesh.Trimesh(), trimesh.creation.box())
+
+
+def test_open_mesh_inside_test_warns():
+    open_box = trimesh.creation.box()
+    open_box.update_faces(np.arange(len(open_box.faces)) > 0)
+    with pytest.warns(UserWarning, match="not watertight"):
+        mesh_inside_fn(open_box)
