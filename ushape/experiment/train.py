@@ -1,0 +1,107 @@
+"""What `python train.py` does: build the data, make sure stage 1 exists, train stage 2, report."""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+
+from ushape import atomic
+from ushape.data.layout import WorldIndex
+from ushape.decoder.fit import fit_decoder
+from ushape.encoder.fit import fit_encoder
+from ushape.experiment.decoder_store import ensure_decoder
+from ushape.experiment.summary import print_config, print_summary
+
+log = logging.getLogger(__name__)
+
+STAGES = ("decoder", "encoder")
+RUN_SUMMARY = "run.json"
+
+
+def run(cfg: DictConfig) -> float | None:
+    """Train the configured stage(s); returns the metric a sweeper would minimise (val loss)."""
+    if cfg.stage not in STAGES:
+        raise ValueError(f"stage={cfg.stage!r} is not one of {STAGES}")
+    out_dir = Path(cfg.paths.output_dir).resolve()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    print_config(cfg, out_dir / "config_tree.txt")
+    L.seed_everything(cfg.seed, workers=True)
+    started = time.time()
+
+    world = build_world(cfg)
+    decoder_dir = ensure_decoder(cfg, lambda folder: train_decoder(cfg, world, folder))
+    summary: dict[str, Any] = {"stage": cfg.stage, "world": str(world.root), "decoder_dir": str(decoder_dir)}
+    metric = None
+    if cfg.stage == "encoder":
+        checkpoint = train_encoder(cfg, world, decoder_dir, out_dir)
+        summary["encoder_checkpoint"] = str(checkpoint)
+        summary["tensorboard"] = str(out_dir / "tensorboard")
+        metric = _checkpoint_score(checkpoint)
+    else:
+        summary["tensorboard"] = str(decoder_dir / "tensorboard")
+    summary["seconds"] = round(time.time() - started, 1)
+    atomic.write_json(out_dir / RUN_SUMMARY, summary)
+    print_summary(summary, out_dir)
+    return metric
+
+
+def build_world(cfg: DictConfig) -> WorldIndex:
+    """Instantiate the `data` config (synthetic, shapenet, ...) and build or validate its cache."""
+    started = time.time()
+    world = instantiate(cfg.data).build()
+    log.info("data ready in %.1f s: %s (%s)", time.time() - started, world.root,
+             ", ".join(f"{k} {len(v)}" for k, v in world.splits.items()))
+    return world
+
+
+def train_decoder(cfg: DictConfig, world: WorldIndex, folder: Path) -> None:
+    s1 = cfg.stage1
+    fit_decoder(
+        world_root=world.root,
+        out_dir=folder,
+        decoder=_plain(cfg.decoder),
+        module=_plain(s1.module),
+        trainer={**_plain(cfg.trainer), "max_epochs": s1.max_epochs},
+        data=_plain(s1.data),
+        latent_optim=_plain(s1.latent_optim),
+        checkpoint_every_n_epochs=s1.checkpoint_every_n_epochs,
+        seed=cfg.seed,
+    )
+
+
+def train_encoder(cfg: DictConfig, world: WorldIndex, decoder_dir: Path, out_dir: Path) -> Path:
+    s2 = cfg.stage2
+    logger = instantiate(cfg.logger) if cfg.get("logger") else False
+    return fit_encoder(
+        world_root=world.root,
+        decoder_dir=decoder_dir,
+        out_dir=out_dir,
+        encoder=_plain(cfg.encoder),
+        loss=_plain(cfg.loss),
+        module={**_plain(s2.module), "max_epochs": s2.max_epochs},
+        data={**_plain(s2.data), "seed": cfg.seed},
+        trainer={**_plain(cfg.trainer), "max_epochs": s2.max_epochs},
+        logger=logger,
+    )
+
+
+def _checkpoint_score(checkpoint: Path) -> float | None:
+    import torch
+
+    blob = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    for callback in blob.get("callbacks", {}).values():
+        score = callback.get("best_model_score") if isinstance(callback, dict) else None
+        if score is not None:
+            return float(score)
+    return None
+
+
+def _plain(node: Any) -> Any:
+    return OmegaConf.to_container(node, resolve=True) if OmegaConf.is_config(node) else node
