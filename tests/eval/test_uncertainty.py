@@ -1,0 +1,91 @@
+"""Known answers of the latent- and SDF-space uncertainty scores."""
+
+import math
+
+import pytest
+import torch
+
+from ushape.evaluation.uncertainty import (
+    latent_nll,
+    latent_report,
+    propagate_to_sdf,
+    region_masks,
+    sdf_region_scores,
+)
+from ushape.evaluation.scores import energy_score_1d
+
+
+class LinearDecoder(torch.nn.Module):
+    """f(x, z) = x_0 + w . z: linear in the code, so first-order propagation is exact."""
+
+    def __init__(self, w):
+        super().__init__()
+        self.w = torch.nn.Parameter(torch.as_tensor(w, dtype=torch.float32))
+
+    def forward(self, xyz, z):
+        return xyz[..., 0] + (z * self.w).sum(-1)
+
+
+def test_latent_nll_is_the_full_gaussian_log_density():
+    torch.manual_seed(0)
+    mu, target = torch.randn(5, 4), torch.randn(5, 4)
+    var = torch.rand(5, 4) + 0.1
+    expected = -torch.distributions.Normal(mu, var.sqrt()).log_prob(target).sum(-1).mean()
+    assert latent_nll(mu, var, target) == pytest.approx(float(expected), rel=1e-5)
+
+
+def test_latent_report_prefers_a_calibrated_variance():
+    torch.manual_seed(0)
+    mu = torch.zeros(2000, 8)
+    target = 0.1 * torch.randn(2000, 8)
+    good = latent_report(mu, torch.full_like(mu, 0.01), target)
+    equal = latent_report(mu, torch.ones_like(mu), target)
+    assert good["calibration_error"] < 0.03 < equal["calibration_error"]
+    assert good["nll"] < equal["nll"] and good["es"] < equal["es"]
+    assert good["l2"] == pytest.approx(equal["l2"])
+
+
+def test_regions_split_at_the_surface_band():
+    sdf = torch.tensor([-0.2, -0.005, 0.0, 0.009, 0.01, 0.5])
+    masks = region_masks(sdf, 0.01)
+    assert masks["surface"].tolist() == [False, True, True, True, False, False]
+    assert (masks["surface"] ^ masks["non_surface"]).all() and masks["all"].all()
+
+
+def test_sdf_region_scores_average_per_region():
+    mean = torch.zeros(4)
+    var = torch.full((4,), 0.25)
+    sdf = torch.tensor([0.0, 0.005, 0.5, -0.5])
+    scores = sdf_region_scores(mean, var, sdf)
+    es = energy_score_1d(mean, var, sdf)
+    assert scores["es_surface"] == pytest.approx(float(es[:2].mean()))
+    assert scores["es_non_surface"] == pytest.approx(float(es[2:].mean()))
+    assert scores["n_surface"] == 2 and scores["n_all"] == 4
+    assert scores["nll_all"] == pytest.approx(0.5 * math.log(2 * math.pi * 0.25) + float((sdf**2).mean() / 0.5))
+
+
+def test_empty_region_scores_nan():
+    scores = sdf_region_scores(torch.zeros(2), torch.ones(2), torch.tensor([0.5, 0.6]))
+    assert math.isnan(scores["es_surface"]) and scores["n_surface"] == 0
+
+
+def test_linearised_propagation_is_exact_for_a_linear_decoder_and_mc_agrees():
+    w = [0.02, -0.01, 0.03]
+    decoder = LinearDecoder(w)
+    mu, var = torch.zeros(3), torch.tensor([1.0, 4.0, 0.25])
+    points = torch.tensor([[0.0, 0, 0], [0.05, 0, 0]])
+    mean, variance = propagate_to_sdf(decoder, mu, var, points, "linearised", clamp=None)
+    expected = sum(wi**2 * vi for wi, vi in zip(w, var.tolist()))
+    torch.testing.assert_close(variance, torch.full((2,), expected))
+    torch.testing.assert_close(mean, points[:, 0])
+    _, mc_var = propagate_to_sdf(decoder, mu, var, points, "mc", n_samples=4000, clamp=None)
+    torch.testing.assert_close(mc_var, torch.full((2,), expected), rtol=0.1, atol=0.0)
+
+
+def test_clamped_propagation_has_no_spread_beyond_the_clamp():
+    decoder = LinearDecoder([0.001])
+    points = torch.tensor([[0.5, 0, 0], [0.0, 0, 0]])
+    mean, variance = propagate_to_sdf(decoder, torch.zeros(1), torch.ones(1), points, "linearised", clamp=0.1)
+    assert mean.tolist() == pytest.approx([0.1, 0.0]) and variance[0] == 0 and variance[1] > 0
+    mean, variance = propagate_to_sdf(decoder, torch.zeros(1), torch.ones(1), points, "mc", clamp=0.1)
+    assert mean[0] == pytest.approx(0.1) and variance[0] == 0
