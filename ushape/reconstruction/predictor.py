@@ -1,0 +1,217 @@
+"""A trained stage-2 run as a predictor: images -> one Gaussian over the latent code per view.
+
+Where a run lives (written by `python train.py`, see ushape.experiment.train):
+    outputs/runs/<date>/<time>_encoder_<category>_<loss>/
+      run.json                 {"stage": "encoder", "encoder_checkpoint": ..., "decoder_dir": ...}
+      .hydra/config.yaml       the composed config; stage2.data.image_size is the model's input size
+      checkpoints/best.ckpt    the encoder (its frozen decoder is loaded from hparams.decoder_path)
+      checkpoints/temperature.json   written by `fit_and_store_temperature` (beside the checkpoint)
+
+User images are read as RGBA; a missing alpha means opaque. Non-square images are padded to a
+square with transparent pixels (so the object keeps its aspect ratio), resized to the model's
+input size and composited on the same plain background that `mask_mode=gt_mask` trains with.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import torch
+import torch.nn.functional as F
+from omegaconf import OmegaConf
+from torch import Tensor, nn
+
+from ushape.data.augment import IMAGE_SUFFIXES, CompositeBackground, load_rgba, resize
+from ushape.experiment.train import RUN_SUMMARY
+from ushape.recalibration.temperature import apply_temperature
+
+log = logging.getLogger(__name__)
+
+TEMPERATURE_FILE = "temperature.json"
+HYDRA_CONFIG = Path(".hydra") / "config.yaml"
+RUNS_DIR = Path("outputs") / "runs"
+DEFAULT_CHECKPOINTS = (Path("checkpoints") / "best.ckpt", Path("checkpoints") / "last.ckpt")
+NO_RUN_HINT = "train one with `make demo` / `python train.py experiment=quickstart`"
+
+
+def latest_run(root: str | Path = ".") -> Path:
+    """The newest run folder under <root>/outputs/runs whose run.json says stage == encoder."""
+    runs_dir = Path(root) / RUNS_DIR
+    candidates = []
+    for summary in runs_dir.glob(f"**/{RUN_SUMMARY}"):
+        try:
+            stage = json.loads(summary.read_text()).get("stage")
+        except (OSError, ValueError):
+            continue
+        if stage == "encoder":
+            candidates.append(summary)
+    if not candidates:
+        raise FileNotFoundError(f"no finished encoder run (run.json with stage=encoder) under {runs_dir}: {NO_RUN_HINT}")
+    return max(candidates, key=lambda p: p.stat().st_mtime).parent
+
+
+def resolve_checkpoint(source: str | Path) -> tuple[Path, Path | None]:
+    """(checkpoint file, run folder or None) from a run folder or a .ckpt path."""
+    source = Path(source).expanduser()
+    if source.is_file():
+        run_dir = source.parent.parent
+        return source, run_dir if (run_dir / HYDRA_CONFIG).is_file() else None
+    if not source.is_dir():
+        raise FileNotFoundError(f"{source} is neither a run folder nor a checkpoint file: {NO_RUN_HINT}")
+    summary = source / RUN_SUMMARY
+    if summary.is_file():
+        recorded = json.loads(summary.read_text()).get("encoder_checkpoint")
+        if recorded and Path(recorded).is_file():
+            return Path(recorded), source
+    for name in DEFAULT_CHECKPOINTS:
+        if (source / name).is_file():
+            return source / name, source
+    raise FileNotFoundError(f"run folder {source} holds no encoder checkpoint (checkpoints/best.ckpt): {NO_RUN_HINT}")
+
+
+def temperature_path(checkpoint: str | Path) -> Path:
+    return Path(checkpoint).parent / TEMPERATURE_FILE
+
+
+def read_temperature(checkpoint: str | Path) -> float:
+    """The temperature stored beside a checkpoint by `fit_and_store_temperature`."""
+    path = temperature_path(checkpoint)
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"no {TEMPERATURE_FILE} beside {checkpoint}: fit it first with `python reconstruct.py --fit-temperature "
+            f"--checkpoint {checkpoint}`"
+        )
+    return float(json.loads(path.read_text())["temperature"])
+
+
+def run_config(run_dir: Path | None) -> dict:
+    """The run's composed Hydra config as a plain dict ({} without a run folder)."""
+    if run_dir is None or not (run_dir / HYDRA_CONFIG).is_file():
+        return {}
+    return OmegaConf.to_container(OmegaConf.load(run_dir / HYDRA_CONFIG), resolve=False)
+
+
+def input_settings(checkpoint_blob: dict, config: dict) -> tuple[int, str]:
+    """(image_size, mask_mode) of the model's inputs: the run config first, then the checkpoint's datamodule."""
+    data = dict(checkpoint_blob.get("datamodule_hyper_parameters") or {})
+    data.update((config.get("stage2") or {}).get("data") or {})
+    if "image_size" not in data:
+        raise ValueError("cannot tell the model's input size: pass the run folder (with .hydra/config.yaml) "
+                         "or a checkpoint trained with EncoderDataModule")
+    return int(data["image_size"]), str(data.get("mask_mode", "gt_mask"))
+
+
+@dataclass
+class Predictor:
+    """An encoder checkpoint, its frozen decoder and how it wants its input images."""
+
+    model: nn.Module  # EncoderModule in eval mode
+    image_size: int
+    checkpoint: Path
+    run_dir: Path | None = None
+    temperature: float | None = None
+    mask_mode: str = "gt_mask"
+    background_value: float = 1.0
+    world: Path | None = field(default=None)
+
+    @property
+    def decoder(self) -> nn.Module:
+        return self.model.decoder
+
+    @property
+    def latent_size(self) -> int:
+        return int(self.model.encoder.head.mean.out_features)
+
+    @torch.no_grad()
+    def encode(self, images: Tensor) -> tuple[Tensor, Tensor]:
+        """images [V, 3, H, W] in [0, 1] at the model's size -> (mu [V, D], var [V, D]), T-scaled if set."""
+        if images.ndim != 4 or images.shape[1] != 3:
+            raise ValueError(f"images must be [V, 3, H, W] RGB in [0, 1], got {tuple(images.shape)}")
+        if images.shape[-2:] != (self.image_size, self.image_size):
+            raise ValueError(f"images are {tuple(images.shape[-2:])}, the model takes {self.image_size}px: "
+                             "use `prepare` or `load_images`")
+        self.model.eval()
+        mu, logvar = self.model(images.float())
+        var = logvar.exp()
+        return mu, (apply_temperature(var, self.temperature) if self.temperature is not None else var)
+
+    def prepare(self, rgba: Tensor) -> Tensor:
+        """Premultiplied RGBA [4, H, W] of any size -> model input RGB [3, S, S] on the training background."""
+        composite = CompositeBackground("gt_mask", self.background_value)
+        return composite(resize(pad_square(rgba), self.image_size))
+
+    def load_images(self, paths: Sequence[str | Path]) -> tuple[Tensor, list[Path], list[tuple[Path, str]]]:
+        """(images [V, 3, S, S], the paths read, [(path, why)] skipped); a ValueError if none is readable."""
+        images, kept, skipped = [], [], []
+        for path in paths:
+            try:
+                images.append(self.prepare(load_rgba(path)))
+                kept.append(Path(path))
+            except (ValueError, FileNotFoundError) as err:
+                log.warning("skipped %s: %s", path, err)
+                skipped.append((Path(path), str(err)))
+        if not images:
+            raise ValueError(f"none of the {len(paths)} input image(s) could be read: "
+                             + "; ".join(f"{p}: {why}" for p, why in skipped))
+        return torch.stack(images), kept, skipped
+
+
+def pad_square(rgba: Tensor) -> Tensor:
+    """RGBA [4, H, W] -> [4, S, S], S = max(H, W), centred, padded with transparent pixels."""
+    if rgba.ndim != 3 or rgba.shape[0] != 4:
+        raise ValueError(f"expected premultiplied RGBA [4, H, W], got {tuple(rgba.shape)}")
+    h, w = rgba.shape[-2:]
+    size = max(h, w)
+    top, left = (size - h) // 2, (size - w) // 2
+    return F.pad(rgba, (left, size - w - left, top, size - h - top))
+
+
+def collect_inputs(inputs: Iterable[str | Path]) -> list[Path]:
+    """Image files from files and folders (a folder contributes its images, sorted by name)."""
+    files: list[Path] = []
+    for item in inputs:
+        path = Path(item).expanduser()
+        if path.is_dir():
+            found = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+            if not found:
+                raise FileNotFoundError(f"folder {path} holds no {'/'.join(IMAGE_SUFFIXES)} images")
+            files += found
+        else:
+            files.append(path)  # missing or unreadable files are reported per image by load_images
+    if not files:
+        raise ValueError("no input images given: pass one image, several, or a folder of them")
+    return files
+
+
+def load_predictor(
+    source: str | Path | None = None,
+    temperature: bool = False,
+    root: str | Path = ".",
+) -> Predictor:
+    """A Predictor from a run folder or checkpoint (None: the newest encoder run under <root>/outputs/runs).
+
+    temperature=True applies the T stored beside the checkpoint (var' = T var).
+    """
+    from ushape.encoder.module import EncoderModule  # lightning is imported only when a model is loaded
+
+    run_dir = latest_run(root) if source is None else None
+    checkpoint, run_dir = resolve_checkpoint(run_dir or source)
+    blob = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    config = run_config(run_dir)
+    image_size, mask_mode = input_settings(blob, config)
+    model = EncoderModule.load_from_checkpoint(checkpoint, map_location="cpu", weights_only=False)
+    model.eval()
+    summary = json.loads((run_dir / RUN_SUMMARY).read_text()) if run_dir and (run_dir / RUN_SUMMARY).is_file() else {}
+    return Predictor(
+        model=model,
+        image_size=image_size,
+        checkpoint=Path(checkpoint),
+        run_dir=run_dir,
+        temperature=read_temperature(checkpoint) if temperature else None,
+        mask_mode=mask_mode,
+        world=Path(summary["world"]) if summary.get("world") else None,
+    )
