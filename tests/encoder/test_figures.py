@@ -7,8 +7,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from torch import nn
 
 from ushape.data.render_dataset import EncoderDataModule
-from ushape.encoder.calibration import calibration_curve
-from ushape.encoder.figures import calibration_figure, mesh_panel, render_code
+from ushape.encoder.figures import mesh_panel, render_code
 from ushape.encoder.module import EncoderModule
 
 
@@ -32,12 +31,9 @@ def test_render_code_of_a_sphere_and_of_nothing():
     assert render_code(decoder, torch.tensor([-5.0, 0.0]), resolution=16, image_size=32) is None
 
 
-def test_panel_and_calibration_figures_build():
+def test_mesh_panel_builds():
     fig = mesh_panel(torch.rand(2, 3, 8, 8), [np.zeros((8, 8, 4), np.uint8), None], [None, None])
     assert len(fig.axes) == 6
-    err = torch.rand(100)
-    fig = calibration_figure({"a": calibration_curve(err, torch.ones(100), 5)})
-    assert fig.axes[0].get_xlabel().startswith("predicted")
 
 
 def test_validation_writes_figures_to_tensorboard(world, decoder_dir, tiny_encoder, tmp_path):

@@ -1,8 +1,8 @@
-"""Validation pictures of stage 2: latent calibration plots and decoded meshes beside their input view."""
+"""Validation pictures of stage 2: decoded meshes beside their input view (calibration plots: ushape.evaluation)."""
 
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from typing import Sequence
 
 import numpy as np
 import torch
@@ -11,19 +11,6 @@ from torch import Tensor, nn
 
 # A fixed three-quarter view of the normalised cube [-1, 1]^3 for mesh pictures.
 MESH_VIEW = {"azimuth_deg": 45.0, "elevation_deg": 25.0, "distance": 3.2, "fov_deg": 40.0}
-
-
-def calibration_figure(curves: Mapping[str, tuple[Tensor, Tensor]], title: str = "latent calibration") -> Figure:
-    """Frequency F_t against probability p_t per named curve, with the calibrated line Y = X."""
-    fig = Figure(figsize=(4, 4), dpi=100)
-    ax = fig.add_subplot()
-    ax.plot([0, 1], [0, 1], "k--", linewidth=1, label="calibrated")
-    for label, (p, freq) in curves.items():
-        ax.plot(p.cpu().numpy(), freq.cpu().numpy(), marker="o", markersize=3, label=label)
-    ax.set(xlim=(0, 1), ylim=(0, 1), xlabel="predicted probability $p_t$", ylabel="observed frequency $F_t$", title=title)
-    ax.legend(loc="upper left", fontsize=8)
-    fig.tight_layout()
-    return fig
 
 
 def render_code(decoder: nn.Module, code: Tensor, resolution: int = 48, image_size: int = 128) -> np.ndarray | None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ushape.encoder.calibration import calibration_curve, calibration_error
+from ushape.evaluation.calibration import calibration_curve, calibration_error
 from ushape.encoder.losses import energy_score, gaussian_nll
 
 
@@ -50,5 +50,5 @@ def latent_scores(
         "latent_es": energy_score(mu, logvar, target, n_samples=n_samples, generator=generator),
         "latent_nll": gaussian_nll(mu, logvar, target),
         "rank_corr": spearman_correlation(logvar.exp().sum(-1), ((mu - target) ** 2).sum(-1)),
-        "calibration_error": calibration_error(p, freq),
+        "calibration_error": torch.tensor(calibration_error(p, freq)),
     }

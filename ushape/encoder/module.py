@@ -21,11 +21,11 @@ from omegaconf import OmegaConf
 from torch import Tensor
 
 from ushape.decoder.artifacts import load_decoder
-from ushape.encoder.calibration import calibration_curve
-from ushape.encoder.figures import calibration_figure, mesh_panel, render_code
+from ushape.encoder.figures import mesh_panel, render_code
 from ushape.encoder.heads import ImageEncoder
 from ushape.encoder.latent_metrics import latent_scores
 from ushape.encoder.losses import l2_loss
+from ushape.evaluation.calibration import calibration_curve, plot_calibration
 
 LossFn = Callable[..., Tensor]
 
@@ -156,7 +156,7 @@ class EncoderModule(L.LightningModule):
         curves = {"equal variance (sigma=1)": calibration_curve(err, torch.ones_like(err), levels)}
         if self.predicts_variance:
             curves["predicted"] = calibration_curve(err, torch.exp(0.5 * logvar), levels)
-        writer.add_figure(f"{prefix}/latent_calibration", calibration_figure(curves), self.global_step)
+        writer.add_figure(f"{prefix}/latent_calibration", plot_calibration(curves, "latent calibration"), self.global_step)
         if out.get("images"):
             self.decoder.to(self.device)
             predicted = [render_code(self.decoder, m, self.hparams.mesh_resolution) for m, _ in out["mesh_codes"]]
