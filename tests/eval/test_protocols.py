@@ -1,0 +1,106 @@
+"""Protocol logic: view grouping, deterministic crops, fusion rows, and the whole pipeline on spheres."""
+
+import math
+import warnings
+
+import pytest
+import torch
+
+from ushape.data.augment import CompositeBackground, load_rgba, resize
+from ushape.evaluation import protocols as P
+from ushape.evaluation.runner import evaluate_all, evaluate_encoder
+from ushape.evaluation.views import ViewKey, corrupted_view, encode_views, view_seed
+
+from conftest import FakePredictor, RADII, make_run, tiny_settings
+
+
+def _keys(n_shapes, n_views):
+    return [ViewKey(f"s{s}", v) for s in range(n_shapes) for v in range(n_views)]
+
+
+def test_views_are_grouped_in_tens_per_shape_and_short_tails_dropped():
+    groups = P.group_views(_keys(2, 25), 10)
+    assert [(g[0].shape_id, g[0].view, len(g)) for g in groups] == [("s0", 0, 10), ("s0", 10, 10),
+                                                                   ("s1", 0, 10), ("s1", 10, 10)]
+
+
+def test_a_shape_with_few_views_is_one_instance_with_a_warning():
+    with pytest.warns(UserWarning, match="fewer than group_size"):
+        groups = P.group_views(_keys(1, 3), 10)
+    assert len(groups) == 1 and len(groups[0]) == 3
+
+
+def test_view_seeds_depend_on_the_view_only():
+    assert view_seed(0, "a", 1) == view_seed(0, "a", 1)
+    assert len({view_seed(0, "a", 1), view_seed(0, "a", 2), view_seed(0, "b", 1), view_seed(1, "a", 1)}) == 4
+
+
+def test_crops_are_deterministic_and_full_scale_keeps_the_image(sphere_world):
+    rgba = load_rgba(sphere_world.image_path("test_0", 0))
+    a = corrupted_view(rgba, 32, 0.1, seed=7)
+    assert torch.equal(a, corrupted_view(rgba, 32, 0.1, seed=7))
+    assert not torch.equal(a, corrupted_view(rgba, 32, 0.1, seed=8))
+    whole = CompositeBackground("gt_mask", 1.0)(resize(rgba, 32))
+    assert torch.equal(corrupted_view(rgba, 32, 1.0, seed=7), whole)
+
+
+def test_fusion_methods_of_a_deterministic_encoder_are_averaging_only():
+    assert list(P.fusion_methods(False, [1, 2])) == ["average"]
+    assert list(P.fusion_methods(True, [1, 2])) == ["average", "bayesian", "bayesian-1", "bayesian-2"]
+
+
+def test_summarise_averages_cd_over_non_empty_reconstructions():
+    base = {"encoder": "es", "label": "Ours", "protocol": "single", "min_scale": 1.0, "method": "single-view",
+            "views": 1, "shape_id": "a"}
+    rows = P.summarise([{**base, "item": "0", "iou": 0.5, "cd": 0.2}, {**base, "item": "1", "iou": 0.0, "cd": math.nan}])
+    assert rows[0]["iou"] == 0.25 and rows[0]["cd"] == 0.2 and rows[0]["empty"] == 1 and rows[0]["n"] == 2
+
+
+def test_encodings_are_cached_and_reused(sphere_world, tmp_path):
+    predictor = FakePredictor(tmp_path / "x.ckpt")
+    predictor.checkpoint.write_bytes(b"x")
+    keys = [ViewKey("test_0", v) for v in range(3)]
+    first = encode_views(predictor, sphere_world, keys, 0.5, cache_dir=tmp_path)
+    predictor.encode = None  # a second call must not encode again
+    second = encode_views(predictor, sphere_world, keys, 0.5, cache_dir=tmp_path)
+    assert torch.equal(first.mu, second.mu) and len(list(tmp_path.glob("enc_*.pt"))) == 1
+
+
+def test_sphere_pipeline_scores_good_reconstructions_and_corruption_hurts(sphere_world, sphere_codes, tmp_path):
+    settings = tiny_settings(protocols=("single_view", "multi_view", "corrupted"))
+    run = make_run(sphere_world, sphere_codes, tmp_path / "cache", "es", tmp_path, settings)
+    out = evaluate_encoder(run, settings, tmp_path / "cache")
+    cells = {(r["protocol"], r["min_scale"], r["method"]): r for r in P.summarise(out["records"])}
+    clean = cells[("single", 1.0, "single-view")]
+    assert clean["n"] == len(RADII) * 8 and clean["iou"] > 0.8 and "emd" in clean
+    assert cells[("single", 0.1, "single-view")]["iou"] < clean["iou"]
+    # 2 shapes x 8 views in instances of 4: 4 instances per fusion method.
+    assert cells[("multi", 1.0, "bayesian-3")]["n"] == 4 and cells[("multi", 1.0, "bayesian")]["views"] == 4
+    assert ("multi", 0.4, "bayesian-2") in cells and ("multi", 0.4, "bayesian-3") not in cells
+
+
+def test_setting_row_warns_when_k_exceeds_the_views(sphere_world, sphere_codes, tmp_path):
+    from ushape.fusion.strategies import BayesianKFusion
+
+    settings = tiny_settings(protocols=())
+    run = make_run(sphere_world, sphere_codes, None, "es", tmp_path, settings)
+    with pytest.warns(UserWarning, match="only 4 views"):
+        out = evaluate_encoder(run, settings, None, setting=(BayesianKFusion(k=6), "bayesian-6", 1.0))
+    (row,) = out["rows"]
+    assert row["fusion"] == "bayesian-6" and row["n_instances"] == 4 and 0 < row["multi_view_iou"] <= 1
+    assert out["records"] == []
+
+
+def test_evaluate_all_runs_the_uncertainty_analysis_with_the_equal_variance_baseline(sphere_world, sphere_codes, tmp_path):
+    settings = tiny_settings(protocols=("uncertainty",))
+    runs = [make_run(sphere_world, sphere_codes, None, name, tmp_path, settings) for name in ("es", "l2")]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = evaluate_all(runs, settings)
+    kinds = {(r["encoder"], r["space"], r["variance"], r["method"]) for r in result["uncertainty"]}
+    assert ("es", "sdf", "predicted", "linearised") in kinds and ("es", "latent", "equal", "-") in kinds
+    assert ("l2", "sdf", "predicted", "mc") not in kinds and ("l2", "sdf", "equal", "mc") in kinds
+    sdf = {(r["encoder"], r["variance"], r["method"]): r for r in result["uncertainty"] if r["space"] == "sdf"}
+    # Unit latent variance through a decoder whose radius moves 0.1 tanh(z): far too wide for these errors.
+    assert sdf[("es", "predicted", "mc")]["nll_all"] < sdf[("es", "equal", "mc")]["nll_all"]
+    assert set(result["curves"]["latent"]) == {"Ours (predicted var)", "Ours (equal var)", "FroDO* (equal var)"}

@@ -1,0 +1,183 @@
+"""What `python eval.py` does: find the runs, run every protocol for each encoder, gather the results.
+
+Every encoder of the evaluation is scored on the same test views with the same crops, so ES, NLL
+and L2 (FroDO*) runs land side by side in one set of tables.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from ushape.data.layout import WorldIndex
+from ushape.decoder.artifacts import codes_file, load_codes
+from ushape.evaluation import protocols as P
+from ushape.evaluation.reconstruct import Reconstructor
+from ushape.evaluation.uncertainty_protocol import curves_to_json, decoder_dir_of, latent_rows, sdf_rows
+from ushape.evaluation.views import encode_views, test_views
+
+log = logging.getLogger(__name__)
+
+PROTOCOLS = ("single_view", "multi_view", "corrupted", "uncertainty")
+LOSS_NAMES = {"energy_score": "es", "gaussian_nll": "nll", "l2_loss": "l2"}
+RESULT_ROW = "eval_row.json"
+RESULTS = "results.json"
+
+
+@dataclass
+class Settings:
+    """What to evaluate and how finely (conf/eval.yaml's `settings`)."""
+
+    split: str = "test"
+    group_size: int = P.GROUP_SIZE
+    table4_k: int = 4
+    resolution: int = 64
+    n_points: int = 1024
+    single_view_scales: Sequence[float] = (1.0, 0.1, 0.01)
+    corrupted_scales: Sequence[float] = (0.8, 0.4, 0.2, 0.1, 0.01)
+    sdf_points: int = 1024
+    mc_samples: int = 10
+    sdf_max_views: int | None = None
+    sdf_clamp: float | None = 0.1
+    calibration_levels: int = 20
+    max_shapes: int | None = None
+    seed: int = 0
+    protocols: Sequence[str] = PROTOCOLS
+
+    def __post_init__(self) -> None:
+        unknown = [p for p in self.protocols if p not in PROTOCOLS]
+        if unknown:
+            raise ValueError(f"unknown protocols {unknown}; choose from {PROTOCOLS}")
+        if self.group_size < 1 or self.resolution < 8:
+            raise ValueError("group_size must be >= 1 and resolution >= 8 (grid points per axis)")
+
+
+@dataclass
+class EncoderRun:
+    spec: P.EncoderSpec
+    predictor: Any
+    world: WorldIndex
+    reconstructor: Reconstructor
+    codes_dir: Path
+    keys: list = field(default_factory=list)
+
+
+def loss_name(predictor) -> str:
+    """es / nll / l2 from the loss `_target_` saved in the checkpoint's hyperparameters."""
+    target = str(predictor.model.hparams.loss.get("_target_", ""))
+    return LOSS_NAMES.get(target.rsplit(".", 1)[-1], target.rsplit(".", 1)[-1] or "unknown")
+
+
+def load_encoder(run_dir: str | Path, settings: Settings, cache_dir: Path | None, taken: set[str]) -> EncoderRun:
+    """A run folder -> its predictor, world, decoder and the test views to evaluate."""
+    from ushape.reconstruction.predictor import load_predictor
+
+    predictor = load_predictor(run_dir)
+    if predictor.world is None:
+        raise FileNotFoundError(f"{run_dir} has no run.json naming its data world: is it a finished encoder run?")
+    world = WorldIndex.load(predictor.world)
+    name = loss_name(predictor)
+    if name in taken:  # two runs with one loss: keep both, told apart by their folder
+        name = f"{name}:{Path(run_dir).name}"
+    taken.add(name)
+    spec = P.EncoderSpec(name, P.encoder_label(name.split(":")[0]) + name[len(name.split(":")[0]):],
+                         probabilistic=bool(predictor.model.predicts_variance))
+    decoder_dir = decoder_dir_of(predictor)
+    tag = f"{decoder_dir.resolve()}|{(decoder_dir / 'decoder.pt').stat().st_mtime_ns}"
+    reconstructor = Reconstructor(predictor.decoder, tag, world, settings.resolution, cache_dir,
+                                  n_points=settings.n_points)
+    ids = world.shape_ids(settings.split)[: settings.max_shapes]
+    return EncoderRun(spec, predictor, world, reconstructor, decoder_dir, test_views(world, settings.split, ids))
+
+
+def evaluate_encoder(run: EncoderRun, settings: Settings, cache_dir: Path | None,
+                     setting: tuple[Callable, str, float] | None = None) -> dict[str, list]:
+    """Records of every protocol asked for, the uncertainty rows and curves, and the configured setting's row."""
+    out: dict[str, Any] = {"records": [], "uncertainty": [], "curves": {}, "rows": []}
+    encode = lambda scale: encode_views(run.predictor, run.world, run.keys, scale, settings.seed, cache_dir)  # noqa: E731
+    groups = P.group_views(run.keys, settings.group_size)
+    rec = run.reconstructor
+    if "single_view" in settings.protocols or "corrupted" in settings.protocols:
+        scales = [1.0] if "corrupted" not in settings.protocols else list(dict.fromkeys([1.0, *settings.single_view_scales]))
+        for scale in scales:
+            out["records"] += P.single_view_records(run.spec, encode(scale), rec, scale, emd=scale == 1.0)
+    if "multi_view" in settings.protocols:
+        methods = P.fusion_methods(run.spec.probabilistic, range(1, settings.group_size))
+        out["records"] += P.multi_view_records(run.spec, encode(1.0), groups, methods, rec, 1.0)
+    if "corrupted" in settings.protocols:
+        methods = P.fusion_methods(run.spec.probabilistic, [settings.table4_k])
+        for scale in dict.fromkeys([*settings.corrupted_scales, *settings.single_view_scales]):
+            if scale != 1.0 or "multi_view" not in settings.protocols:
+                out["records"] += P.multi_view_records(run.spec, encode(scale), groups, methods, rec, scale)
+    if "uncertainty" in settings.protocols:
+        encodings = encode(1.0)
+        codes = load_codes(run.codes_dir / codes_file(settings.split))
+        rows, latent_curves = latent_rows(run.spec, encodings, codes, settings.calibration_levels)
+        sdf, sdf_curves = sdf_rows(run.spec, encodings, run.predictor.decoder, run.world, settings.sdf_points,
+                                   settings.mc_samples, settings.sdf_clamp, settings.sdf_max_views,
+                                   settings.calibration_levels)
+        out["uncertainty"] = rows + sdf
+        out["curves"] = {"latent": curves_to_json(latent_curves), "sdf": curves_to_json(sdf_curves)}
+    if setting is not None:
+        out["rows"].append(setting_row(run, settings, groups, encode, *setting))
+    return out
+
+
+def setting_row(run: EncoderRun, settings: Settings, groups, encode, fuse: Callable, method: str,
+                min_scale: float) -> dict:
+    """One sweep row: single-view and fused multi-view IoU at the configured fusion rule and crop."""
+    encodings = encode(min_scale)
+    single = P.summarise(P.single_view_records(run.spec, encodings, run.reconstructor, min_scale))[0]
+    multi = P.summarise(P.multi_view_records(run.spec, encodings, groups, {method: fuse}, run.reconstructor,
+                                             min_scale, quiet=False))[0]
+    return {"encoder": run.spec.name, "label": run.spec.label, "fusion": method, "min_scale": float(min_scale),
+            "group_size": settings.group_size, "single_view_iou": single["iou"], "single_view_cd": single["cd"],
+            "multi_view_iou": multi["iou"], "multi_view_cd": multi["cd"], "n_views": single["n"],
+            "n_instances": multi["n"]}
+
+
+def evaluate_runs(run_dirs: Sequence[str | Path], settings: Settings, cache_dir: Path | None = None,
+                  setting: tuple[Callable, str, float] | None = None) -> dict[str, Any]:
+    """Load every run folder's encoder and evaluate them all (see `evaluate_all`)."""
+    if not run_dirs:
+        raise ValueError("no runs to evaluate: pass runs=[<run folder>, ...] or sweep=<multirun folder>")
+    taken: set[str] = set()
+    runs = [load_encoder(run_dir, settings, cache_dir, taken) for run_dir in run_dirs]
+    result = evaluate_all(runs, settings, cache_dir, setting)
+    for run, run_dir in zip(runs, run_dirs):
+        result["runs"][run.spec.name]["run_dir"] = str(run_dir)
+    return result
+
+
+def evaluate_all(runs: Sequence[EncoderRun], settings: Settings, cache_dir: Path | None = None,
+                 setting: tuple[Callable, str, float] | None = None) -> dict[str, Any]:
+    """Every protocol for every encoder -> {records, summary, uncertainty, curves, rows, runs, settings, seconds}."""
+    started = time.time()
+    result: dict[str, Any] = {"records": [], "uncertainty": [], "curves": {"latent": {}, "sdf": {}}, "rows": [],
+                              "runs": {}}
+    for run in runs:
+        log.info("evaluating %s on %d views of %s", run.spec.label, len(run.keys), run.world.root)
+        part = evaluate_encoder(run, settings, cache_dir, setting)
+        for key in ("records", "uncertainty", "rows"):
+            result[key] += part[key]
+        for space, curves in part["curves"].items():
+            result["curves"][space].update(curves)
+        result["runs"][run.spec.name] = {"checkpoint": str(run.predictor.checkpoint), "world": str(run.world.root),
+                                         "label": run.spec.label}
+    result["summary"] = P.summarise(result["records"])
+    result["settings"] = {k: (list(v) if isinstance(v, (tuple, range)) else v) for k, v in vars(settings).items()}
+    result["seconds"] = round(time.time() - started, 1)
+    return result
+
+
+def load_results(path: str | Path) -> dict[str, Any]:
+    """An evaluation's results.json (a folder holding one, or the file)."""
+    path = Path(path)
+    path = path / RESULTS if path.is_dir() else path
+    if not path.is_file():
+        raise FileNotFoundError(f"no {RESULTS} at {path}: run `python eval.py` first")
+    return json.loads(path.read_text())

@@ -1,0 +1,96 @@
+"""The uncertainty analysis (the paper's Table S1 and calibration plots) over single test views.
+
+For each encoder, its predicted latent Gaussians and the equal-variance baseline (var = 1, the
+same means) are scored against the stage-1 codes in latent space, and propagated through the
+decoder to the ground-truth SDF sample points of each shape (Monte Carlo, and linearised as a
+second method) and scored there per SDF value, split into All / Surface / Non-Surface.
+"""
+
+from __future__ import annotations
+
+import zlib
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+from tqdm.auto import tqdm
+
+from ushape.data.layout import WorldIndex
+from ushape.decoder.artifacts import CodeTable
+from ushape.evaluation.calibration import calibration_curve, calibration_error
+from ushape.evaluation.protocols import EncoderSpec
+from ushape.evaluation.uncertainty import EQUAL_VARIANCE, latent_report, propagate_to_sdf, sdf_region_scores
+from ushape.evaluation.views import Encodings
+
+PROPAGATION_METHODS = ("mc", "linearised")
+
+
+def sdf_points(world: WorldIndex, shape_id: str, n_points: int, seed: int = 0) -> tuple[Tensor, Tensor]:
+    """A repeatable random subset of a shape's ground-truth SDF samples: points [P, 3], sdf [P]."""
+    path = world.sdf_path(shape_id)
+    if not path.is_file():
+        raise FileNotFoundError(f"no ground-truth SDF samples {path}: the world folder is incomplete")
+    blob = np.load(path)
+    samples = np.concatenate([blob["pos"], blob["neg"]]).astype(np.float32)
+    rng = np.random.default_rng(seed + zlib.crc32(shape_id.encode()))
+    if len(samples) > n_points:
+        samples = samples[rng.choice(len(samples), n_points, replace=False)]
+    samples = torch.from_numpy(samples)
+    return samples[:, :3].contiguous(), samples[:, 3].contiguous()
+
+
+def _variants(spec: EncoderSpec, var: Tensor) -> dict[str, Tensor]:
+    """Predicted variance and the equal-variance baseline; a deterministic encoder only has the latter."""
+    equal = torch.full_like(var, EQUAL_VARIANCE)
+    return {"predicted": var, "equal": equal} if spec.probabilistic else {"equal": equal}
+
+
+def latent_rows(spec: EncoderSpec, encodings: Encodings, codes: CodeTable, n_levels: int = 20) -> tuple[list, dict]:
+    """Latent-space ES / NLL / L2 / calibration error per variance variant, and their calibration curves."""
+    target = torch.stack([codes.lookup(k.shape_id) for k in encodings.keys])
+    rows, curves = [], {}
+    for variant, var in _variants(spec, encodings.var).items():
+        report = latent_report(encodings.mu, var, target, n_levels=n_levels)
+        rows.append({"encoder": spec.name, "label": spec.label, "variance": variant, "space": "latent",
+                     "method": "-", **report})
+        curves[f"{spec.label} ({variant} var)"] = calibration_curve((encodings.mu - target).abs(), var.sqrt(), n_levels)
+    return rows, curves
+
+
+def sdf_rows(spec: EncoderSpec, encodings: Encodings, decoder, world: WorldIndex, n_points: int = 1024,
+             n_samples: int = 10, clamp: float | None = 0.1, max_views: int | None = None, n_levels: int = 20,
+             methods: tuple[str, ...] = PROPAGATION_METHODS) -> tuple[list, dict]:
+    """SDF-space ES / NLL per region and calibration error, per (variance variant, propagation method)."""
+    keys = encodings.keys if max_views is None else encodings.keys[:max_views]
+    pools: dict[tuple[str, str], list[tuple[Tensor, Tensor, Tensor]]] = {}
+    for i, key in enumerate(tqdm(keys, desc=f"{spec.name} SDF uncertainty", leave=False)):
+        points, sdf_true = sdf_points(world, key.shape_id, n_points)
+        if clamp is not None:
+            sdf_true = sdf_true.clamp(-clamp, clamp)
+        for variant, var in _variants(spec, encodings.var[i : i + 1]).items():
+            # The equal-variance baseline by Monte Carlo only: it is the paper's baseline, not a method.
+            for method in methods if variant == "predicted" else ("mc",):
+                mean, variance = propagate_to_sdf(decoder, encodings.mu[i], var[0], points, method, n_samples,
+                                                  seed=i, clamp=clamp)
+                pools.setdefault((variant, method), []).append((mean, variance, sdf_true))
+    rows, curves = [], {}
+    for (variant, method), parts in pools.items():
+        mean, variance, sdf_true = (torch.cat(t) for t in zip(*parts))
+        p, freq = calibration_curve((mean - sdf_true).abs(), variance.sqrt(), n_levels)
+        rows.append({"encoder": spec.name, "label": spec.label, "variance": variant, "space": "sdf",
+                     "method": method, **sdf_region_scores(mean, variance, sdf_true),
+                     "calibration_error": calibration_error(p, freq)})
+        curves[f"{spec.label} ({variant} var, {method})"] = (p, freq)
+    return rows, curves
+
+
+def curves_to_json(curves: dict[str, tuple[Tensor, Tensor]]) -> dict[str, dict[str, list[float]]]:
+    """Calibration curves as plain lists, for results.json and the notebook."""
+    return {name: {"p": torch.as_tensor(p).tolist(), "freq": torch.as_tensor(f).tolist()} for name, (p, f) in curves.items()}
+
+
+def decoder_dir_of(predictor) -> Path:
+    """The stage-1 decoder folder the encoder was trained against (holds codes_test.pt)."""
+    path = Path(predictor.model.hparams.decoder_path)
+    return path if path.is_dir() else path.parent
