@@ -1,0 +1,93 @@
+"""The reconstruct command end to end on a tiny run with an analytic sphere decoder swapped in."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from ushape.fusion import BayesianKFusion
+from ushape.reconstruction.cli import build_fusion, main
+from ushape.reconstruction.export import read_glb_std, read_ply_std
+from ushape.reconstruction.pipeline import ReconstructionSettings, reconstruct, view_camera
+from ushape.reconstruction.predictor import load_predictor
+
+
+class SphereDecoder(torch.nn.Module):
+    """|x| - (0.5 + 0.1 z_0 (1 + x_0)): a sphere whose +x side depends on the code more than its -x side."""
+
+    latent_size = 8
+
+    def __init__(self):
+        super().__init__()
+        self.scale = torch.nn.Parameter(torch.tensor(0.1))
+
+    def forward(self, xyz, z):
+        return xyz.norm(dim=-1) - (0.5 + self.scale * z[..., 0] * (1 + xyz[..., 0]))
+
+
+@pytest.fixture(scope="module")
+def sphere_predictor(tiny_run):
+    predictor = load_predictor(tiny_run["run"])
+    object.__setattr__(predictor.model, "decoder", SphereDecoder())
+    # A one-step random encoder predicts wild codes; pin it to mu = 0 and one variance for all dims.
+    head = predictor.model.encoder.head
+    with torch.no_grad():
+        for layer in (head.mean, head.logvar):
+            layer.weight.zero_()
+        head.mean.bias.zero_()
+        head.logvar.bias.fill_(-4.6)
+    return predictor
+
+
+SMALL = ReconstructionSettings(resolution=24, depth_size=16, depth_codes=4, depth_steps=40)
+
+
+def test_reconstruct_writes_every_output(tiny_run, sphere_predictor, tmp_path):
+    views = sorted((tiny_run["world"] / "renders" / "test_0").glob("*.png"))
+    summary = reconstruct(sphere_predictor, views, BayesianKFusion(k=2), tmp_path / "out", SMALL)
+    out = tmp_path / "out"
+    assert json.loads((out / "summary.json").read_text()) == summary
+    assert len(summary["views"]) == 3 and summary["fusion"] == "bayesian-2"
+    assert summary["fused"]["kept"] == sorted(summary["fused"]["kept"]) and len(summary["fused"]["kept"]) == 2
+    traces = [v["trace_var"] for v in summary["views"]]
+    dropped = [i for i, v in enumerate(summary["views"]) if not v["kept"]]
+    assert len(dropped) == 1  # bayesian-k drops the most uncertain view
+    assert traces[dropped[0]] >= max(t for i, t in enumerate(traces) if i != dropped[0])
+    for key in ("ply", "glb", "colour_bar", "overview"):
+        assert (out / summary["files"][key].split("/")[-1]).is_file()
+    std_ply, std_glb = read_ply_std(summary["files"]["ply"]), read_glb_std(summary["files"]["glb"])
+    assert np.array_equal(std_ply, std_glb) and len(std_ply) == summary["mesh"]["vertices"]
+    # linearised: std = 0.1 (1 + x) sqrt(var_0), largest on the +x side of the sphere
+    import trimesh
+
+    vertices = trimesh.load(summary["files"]["ply"], process=False).vertices
+    assert np.allclose(np.linalg.norm(vertices, axis=1), 0.5, atol=0.02)  # mu = 0: the radius-0.5 sphere
+    fused_var = summary["fused"]["trace_var"] / 8
+    assert np.allclose(std_ply, 0.1 * (1 + vertices[:, 0]) * np.sqrt(fused_var), rtol=1e-3, atol=1e-6)
+    for view in summary["views"]:
+        assert view["depth"]["camera"] == "render" and view["depth"]["hit_pixels"] > 0
+        with np.load(view["depth"]["npz"]) as depth:
+            assert depth["mean"].shape == (16, 16)
+    assert set(summary["seconds"]) >= {"encode", "fuse", "mesh", "vertex_uncertainty", "depth_uncertainty"}
+
+
+def test_view_camera_uses_the_render_camera_or_the_canonical_one(tiny_run, tmp_path):
+    K, w2c, kind = view_camera(tiny_run["world"] / "renders" / "val_0" / "01.png", 12)
+    with np.load(tiny_run["world"] / "renders" / "val_0" / "views.npz") as cams:
+        assert kind == "render" and np.allclose(w2c, cams["world_to_cam"][1])
+        assert np.allclose(K[:2], cams["K"][1][:2] * 0.5)  # rendered at 24 px, traced at 12
+    assert view_camera(tmp_path / "photo.jpg", 12)[2] == "canonical"
+
+
+def test_cli_reports_skipped_images_and_bad_fusion(tiny_run, tmp_path, capsys, monkeypatch):
+    assert isinstance(build_fusion("bayesian_k", 3), BayesianKFusion) and build_fusion("bayesian_k", 3).k == 3
+    with pytest.raises(ValueError, match="unknown fusion"):
+        build_fusion("median")
+    assert main([str(tmp_path / "nothing.png"), "--run", str(tiny_run["run"])]) == 2
+    assert "none of the 1 input" in capsys.readouterr().err
+    monkeypatch.setattr("ushape.reconstruction.predictor.latest_run", lambda root: tiny_run["run"])
+    assert main(["--fit-temperature"]) == 0
+    record = json.loads((tiny_run["checkpoint"].parent / "temperature.json").read_text())
+    assert record["n_images"] == 9 and record["temperature"] > 0 and record["nll_after"] <= record["nll_before"]
+    (tiny_run["checkpoint"].parent / "temperature.json").unlink()

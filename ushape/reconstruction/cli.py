@@ -1,0 +1,106 @@
+"""Command line of reconstruct.py: argument parsing and what each mode runs (logic lives in the modules).
+
+    python reconstruct.py IMAGE [IMAGE ... | FOLDER] [--run RUN | --checkpoint CKPT] [--out DIR]
+        [--fusion average|bayesian|bayesian_k] [--k 4] [--uncertainty mc|linearised]
+        [--resolution 128] [--temperature] [--std-max S] ...
+    python reconstruct.py --fit-temperature [--run RUN | --checkpoint CKPT]
+
+Without --run/--checkpoint the newest encoder run under ./outputs/runs is used. The fusion rule is
+built from the `fusion` config group (conf/fusion/<name>.yaml), with --k overriding bayesian_k's k.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+from typing import Sequence
+
+from hydra.utils import instantiate
+from omegaconf import OmegaConf
+
+from ushape.mesh.extraction import EmptySurfaceError
+from ushape.propagation.mesh import METHODS
+from ushape.reconstruction.pipeline import ReconstructionSettings, reconstruct
+from ushape.reconstruction.predictor import collect_inputs, load_predictor
+from ushape.reconstruction.temperature_store import fit_and_store_temperature
+
+FUSION_CONFIGS = Path(__file__).resolve().parents[2] / "conf" / "fusion"
+DEFAULT_OUT = Path("outputs") / "reconstructions"
+
+
+def fusion_names() -> list[str]:
+    return sorted(p.stem for p in FUSION_CONFIGS.glob("*.yaml"))
+
+
+def build_fusion(name: str, k: int | None = None):
+    """The fusion callable of conf/fusion/<name>.yaml (k overrides the config's k where it has one)."""
+    path = FUSION_CONFIGS / f"{name}.yaml"
+    if not path.is_file():
+        raise ValueError(f"unknown fusion {name!r}; choose one of {fusion_names()}")
+    config = OmegaConf.load(path)
+    if k is not None and "k" in config:
+        config.k = k
+    return instantiate(config)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description="3D shape with uncertainty from one or more images.")
+    parser.add_argument("inputs", nargs="*", help="image files and/or folders of images (views of one object)")
+    source = parser.add_mutually_exclusive_group()
+    source.add_argument("--run", help="run folder of `python train.py` (default: the newest encoder run)")
+    source.add_argument("--checkpoint", help="an encoder .ckpt instead of a run folder")
+    parser.add_argument("--root", default=".", help="where outputs/runs is searched for the newest run")
+    parser.add_argument("--fit-temperature", action="store_true",
+                        help="fit T (var' = T var) on the run's val split and store temperature.json, then exit")
+    parser.add_argument("--temperature", action="store_true", help="apply the stored temperature")
+    parser.add_argument("--fusion", default="bayesian", help="average | bayesian | bayesian_k (conf/fusion)")
+    parser.add_argument("--k", type=int, default=None, help="views kept by bayesian_k (default: conf, 4)")
+    parser.add_argument("--uncertainty", default="linearised", choices=METHODS, help="vertex std propagation")
+    parser.add_argument("--samples", type=int, default=10, help="codes for --uncertainty mc")
+    parser.add_argument("--resolution", type=int, default=128, help="marching-cubes grid points per axis")
+    parser.add_argument("--depth-size", type=int, default=64, help="depth-map pixels per side")
+    parser.add_argument("--depth-codes", type=int, default=10, help="codes M sphere-traced per depth map")
+    parser.add_argument("--std-max", type=float, default=None,
+                        help="top of the colour scale (default: the 99th percentile of the mesh's stds)")
+    parser.add_argument("--cmap", default="inferno", help="matplotlib colormap for the std colours")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", default=None, help=f"output folder (default {DEFAULT_OUT}/<time>)")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(message)s")
+    args = build_parser().parse_args(argv)
+    source = args.checkpoint or args.run
+    try:
+        if args.fit_temperature:
+            predictor = load_predictor(source, temperature=False, root=args.root)
+            record = fit_and_store_temperature(predictor)
+            print(json.dumps(record, indent=2))
+            return 0
+        files = collect_inputs(args.inputs)
+        fusion = build_fusion(args.fusion, args.k)
+        predictor = load_predictor(source, temperature=args.temperature, root=args.root)
+        settings = ReconstructionSettings(
+            resolution=args.resolution, uncertainty=args.uncertainty, n_samples=args.samples,
+            depth_size=args.depth_size, depth_codes=args.depth_codes, std_max=args.std_max, cmap=args.cmap,
+            seed=args.seed,
+        )
+        out = Path(args.out) if args.out else DEFAULT_OUT / time.strftime("%Y-%m-%d_%H-%M-%S")
+        summary = reconstruct(predictor, files, fusion, out, settings)
+    except EmptySurfaceError as err:
+        print(f"error: the fused code's SDF has no surface in [-1, 1]^3 ({err}); try other views or --fusion", file=sys.stderr)
+        return 2
+    except (FileNotFoundError, ValueError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    kept = summary["fused"]["kept"]
+    print(f"{len(summary['views'])} view(s), fused {kept} with {summary['fusion']}; "
+          f"mesh {summary['mesh']['vertices']} vertices -> {out}")
+    for name, path in summary["files"].items():
+        print(f"  {name}: {path}")
+    return 0

@@ -1,0 +1,177 @@
+"""Images -> per-view latent Gaussians -> fused code -> mesh with per-vertex SDF std, depth maps, summary.
+
+Cameras for the depth maps: an input that is a render of our world (`renders/<id>/NN.png` with
+`views.npz` beside it) is traced from its own camera. A user photo has no pose, so it is traced
+from a canonical R2N2-like camera: azimuth 45, elevation 27.5 deg (the middle of R2N2's range),
+distance 2.8 = 0.8 * 1.75 / 0.5 (R2N2's mean distance ratio in our unit-sphere frame), 49.13 deg
+field of view. Its depth map shows the reconstruction's uncertainty from that fixed viewpoint,
+not aligned with the photo.
+"""
+
+from __future__ import annotations
+
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterator, Sequence
+
+import numpy as np
+import torch
+import trimesh
+from torch import Tensor
+
+from ushape import atomic
+from ushape.data.cameras import R2N2_FOV_DEG, look_at
+from ushape.data.layout import VIEWS_FILE
+from ushape.decoder.query import code_sdf_fn
+from ushape.fusion.rules import FusedCode
+from ushape.mesh.extraction import extract_mesh
+from ushape.propagation.decoding import frozen
+from ushape.propagation.mesh import METHODS, vertex_uncertainty
+from ushape.reconstruction.export import DEFAULT_CMAP, coloured_mesh, write_mesh_files
+from ushape.reconstruction.figures import depth_figure, overview_figure
+from ushape.reconstruction.predictor import Predictor
+from ushape.reconstruction.sphere_tracing import DepthStats, depth_uncertainty, sample_codes
+
+CANONICAL_CAMERA = {"azimuth_deg": 45.0, "elevation_deg": 27.5, "distance": 2.8, "fov_deg": R2N2_FOV_DEG}
+SUMMARY_FILE = "summary.json"
+
+Fusion = Callable[[Tensor, Tensor], FusedCode]  # (mu [V, D], var [V, D]) -> FusedCode
+
+
+@dataclass(frozen=True)
+class ReconstructionSettings:
+    """What `reconstruct` does beyond the inputs; every field has a command-line flag in reconstruct.py."""
+
+    resolution: int = 128
+    uncertainty: str = "linearised"
+    n_samples: int = 10  # codes for MC vertex uncertainty
+    depth_size: int = 64
+    depth_codes: int = 10  # M codes sphere-traced per view
+    depth_steps: int = 50
+    std_max: float | None = None
+    cmap: str = DEFAULT_CMAP
+    seed: int = 0
+
+
+def view_camera(path: Path, size: int) -> tuple[np.ndarray, np.ndarray, str]:
+    """(K [3,3] for a size x size image, world_to_cam [4,4], "render" | "canonical") for one input image."""
+    views = path.parent / VIEWS_FILE
+    if views.is_file() and path.stem.isdigit():
+        with np.load(views) as cams:
+            view = int(path.stem)
+            if view < len(cams["K"]):
+                K = cams["K"][view].astype(np.float64)
+                render_size = 2.0 * K[0, 2]  # the principal point is the image centre
+                scale = np.diag([size / render_size, size / render_size, 1.0])
+                return scale @ K, cams["world_to_cam"][view].astype(np.float64), "render"
+    c = CANONICAL_CAMERA
+    K, w2c = look_at(c["azimuth_deg"], c["elevation_deg"], c["distance"], c["fov_deg"], size)
+    return K, w2c, "canonical"
+
+
+class Timer:
+    """Wall-clock seconds per named stage."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    @contextmanager
+    def __call__(self, name: str) -> Iterator[None]:
+        start = time.perf_counter()
+        yield
+        self.seconds[name] = round(self.seconds.get(name, 0.0) + time.perf_counter() - start, 4)
+
+
+def reconstruct(
+    predictor: Predictor,
+    inputs: Sequence[str | Path],
+    fusion: Fusion,
+    out_dir: str | Path,
+    settings: ReconstructionSettings = ReconstructionSettings(),
+) -> dict[str, Any]:
+    """Run the whole reconstruction of one object from its views and write every output; returns the summary."""
+    if settings.uncertainty not in METHODS:
+        raise ValueError(f"uncertainty must be one of {METHODS}, got {settings.uncertainty!r}")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    timer, generator = Timer(), torch.Generator().manual_seed(settings.seed)
+    with timer("load_images"):
+        images, paths, skipped = predictor.load_images(list(inputs))
+    with timer("encode"):
+        mu, var = predictor.encode(images)
+    with timer("fuse"):
+        fused = fusion(mu, var)
+    decoder = predictor.decoder
+    with timer("mesh"), frozen(decoder):
+        coarse = min(32, settings.resolution)  # extract_mesh's default coarse grid, capped for small meshes
+        mesh, stats = extract_mesh(code_sdf_fn(decoder, fused.mu), settings.resolution, "coarse_to_fine",
+                                   coarse_resolution=coarse)
+    with timer("vertex_uncertainty"):
+        vertices = torch.as_tensor(np.asarray(mesh.vertices), dtype=torch.float32)
+        std = vertex_uncertainty(decoder, fused.mu, fused.var, vertices, settings.uncertainty,
+                                 settings.n_samples, generator).numpy()
+    with timer("write_mesh"):
+        files = write_mesh_files(mesh, std, out_dir, "mesh", settings.std_max, settings.cmap)
+    with timer("overview_figure"):
+        overview = out_dir / "overview.png"
+        shown = coloured_mesh(mesh, std, float(files["std_max"]), settings.cmap)
+        overview_figure(images, shown, overview, float(files["std_max"]), settings.cmap, fused.kept.tolist())
+    with timer("depth_uncertainty"):
+        depth = depth_maps(predictor, fused, images, paths, out_dir, settings, generator)
+    return write_summary(out_dir, predictor, fusion, settings, paths, skipped, mu, var, fused, mesh, std, stats,
+                         files, overview, depth, timer.seconds)
+
+
+def depth_maps(
+    predictor: Predictor,
+    fused: FusedCode,
+    images: Tensor,
+    paths: Sequence[Path],
+    out_dir: Path,
+    settings: ReconstructionSettings,
+    generator: torch.Generator,
+) -> list[dict[str, Any]]:
+    """Per view: sphere-traced depth mean/std of M codes from the fused Gaussian -> depth_<i>.npz/.png."""
+    codes = sample_codes(fused.mu, fused.var, settings.depth_codes, generator)
+    size = settings.depth_size
+    records = []
+    for i, path in enumerate(paths):
+        K, w2c, camera = view_camera(path, size)
+        stats: DepthStats = depth_uncertainty(predictor.decoder, codes, K, w2c, (size, size), settings.depth_steps)
+        npz, png = out_dir / f"depth_{i:02d}.npz", out_dir / f"depth_{i:02d}.png"
+        atomic.save_npz(npz, mean=stats.mean.numpy(), std=stats.std.numpy(), hit_rate=stats.hit_rate.numpy(),
+                        K=K, world_to_cam=w2c)
+        depth_figure(images[i], stats, png, f"view {i} ({camera} camera)")
+        hit = stats.hit_rate > 0
+        records.append({"camera": camera, "npz": str(npz), "png": str(png),
+                        "mean_depth_std": float(stats.std[hit].mean()) if hit.any() else None,
+                        "hit_pixels": int(hit.sum())})
+    return records
+
+
+def write_summary(out_dir, predictor, fusion, settings, paths, skipped, mu, var, fused, mesh, std, stats,
+                  files, overview, depth, seconds) -> dict[str, Any]:
+    """summary.json: inputs, per-view uncertainty (trace of var), fusion's kept views, mesh, timings, paths."""
+    kept = set(fused.kept.tolist())
+    summary = {
+        "checkpoint": str(predictor.checkpoint),
+        "temperature": predictor.temperature,
+        "fusion": getattr(fusion, "name", type(fusion).__name__),
+        "uncertainty": settings.uncertainty,
+        "settings": {k: v for k, v in settings.__dict__.items()},
+        "views": [
+            {"image": str(p), "trace_var": float(var[i].sum()), "kept": i in kept, **{"depth": depth[i]}}
+            for i, p in enumerate(paths)
+        ],
+        "skipped": [{"image": str(p), "reason": why} for p, why in skipped],
+        "fused": {"trace_var": float(fused.var.sum()), "kept": sorted(kept)},
+        "mesh": {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "std_mean": float(np.mean(std)),
+                 "std_max_value": float(np.max(std)), "decoder_evaluations": stats.evaluations,
+                 "dense_evaluations": stats.dense_evaluations},
+        "files": {**files, "overview": str(overview)},
+        "seconds": seconds,
+    }
+    atomic.write_json(out_dir / SUMMARY_FILE, summary)
+    return summary
