@@ -71,11 +71,15 @@ def evaluate_sdf(sdf_fn: SDFFn, points: Tensor, chunk: int = DEFAULT_CHUNK) -> T
     return out
 
 
+def grid_points(resolution: int) -> Tensor:
+    """The dense N^3 grid over [-1, 1]^3 as points, x slowest (ij order): row i*N*N + j*N + k. -> [N^3, 3]"""
+    axis = grid_coordinates(resolution)
+    return torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), dim=-1).reshape(-1, 3)
+
+
 def sdf_grid(sdf_fn: SDFFn, resolution: int, chunk: int = DEFAULT_CHUNK) -> Tensor:
     """SDF on the dense N^3 grid over [-1, 1]^3; grid[i, j, k] is at (x_i, y_j, z_k). -> [N, N, N]"""
-    axis = grid_coordinates(resolution)
-    points = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), dim=-1).reshape(-1, 3)
-    return evaluate_sdf(sdf_fn, points, chunk).reshape(resolution, resolution, resolution)
+    return evaluate_sdf(sdf_fn, grid_points(resolution), chunk).reshape(resolution, resolution, resolution)
 
 
 def marching_cubes(grid: Tensor | np.ndarray) -> trimesh.Trimesh:

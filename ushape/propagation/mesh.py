@@ -5,6 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from ushape.mesh.extraction import grid_points as mesh_grid_points
 from ushape.propagation.decoding import Decoder, decode_points
 from ushape.propagation.linearised import propagate_linearised
 from ushape.propagation.monte_carlo import propagate_mc
@@ -16,9 +17,8 @@ def grid_points(resolution: int, dtype: torch.dtype = torch.float32, device: str
     """Points [N^3, 3] of the N^3 grid over [-1, 1]^3, coordinate -1 + i * 2/(N-1), x slowest (ij order)."""
     if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution < 2:
         raise ValueError(f"resolution must be an integer >= 2 (grid points per axis), got {resolution!r}")
-    axis = -1.0 + torch.arange(resolution, dtype=torch.float64) * (2.0 / (resolution - 1))
-    x, y, z = torch.meshgrid(axis, axis, axis, indexing="ij")
-    return torch.stack([x, y, z], dim=-1).reshape(-1, 3).to(dtype=dtype, device=device)
+    # The mesh extractor's grid, so an uncertainty grid lines up with the SDF grid it colours.
+    return mesh_grid_points(resolution).to(dtype=dtype, device=device)
 
 
 def propagate(
