@@ -124,3 +124,22 @@ def make_run(world, codes_dir, cache_dir, name, tmp_path, settings):
     reconstructor = Reconstructor(predictor.decoder, "spheres", world, settings.resolution, cache_dir,
                                   n_points=settings.n_points)
     return EncoderRun(spec, predictor, world, reconstructor, codes_dir, test_views(world))
+
+
+@pytest.fixture(scope="session")
+def evaluated_dir(sphere_world, sphere_codes, tmp_path_factory):
+    """Every protocol for fake ES, NLL and L2 encoders on the ellipsoid world, written like eval.py does."""
+    import warnings
+
+    from ushape.evaluation.report import write_results
+    from ushape.evaluation.runner import evaluate_all
+    from ushape.fusion.strategies import BayesianKFusion
+
+    tmp = tmp_path_factory.mktemp("evaluation")
+    settings = tiny_settings(showcase_shapes=1)
+    runs = [make_run(sphere_world, sphere_codes, tmp / "cache", name, tmp, settings) for name in ("es", "nll", "l2")]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = evaluate_all(runs, settings, tmp / "cache", (BayesianKFusion(k=2), "bayesian-2", 0.4), tmp / "out")
+    write_results(result, tmp / "out")
+    return tmp / "out"

@@ -17,6 +17,7 @@ from ushape.data.layout import WorldIndex
 from ushape.decoder.artifacts import codes_file, load_codes
 from ushape.evaluation import protocols as P
 from ushape.evaluation.reconstruct import Reconstructor
+from ushape.evaluation.showcase import save_showcase
 from ushape.evaluation.uncertainty_protocol import curves_to_json, decoder_dir_of, latent_rows, sdf_rows
 from ushape.evaluation.views import encode_views, test_views
 
@@ -37,7 +38,9 @@ class Settings:
     table4_k: int = 4
     resolution: int = 64
     n_points: int = 1024
+    bf16: bool = True
     single_view_scales: Sequence[float] = (1.0, 0.1, 0.01)
+    single_view_views: int | None = None
     corrupted_scales: Sequence[float] = (0.8, 0.4, 0.2, 0.1, 0.01)
     sdf_points: int = 1024
     mc_samples: int = 10
@@ -45,6 +48,7 @@ class Settings:
     sdf_clamp: float | None = 0.1
     calibration_levels: int = 20
     max_shapes: int | None = None
+    showcase_shapes: int = 2
     seed: int = 0
     protocols: Sequence[str] = PROTOCOLS
 
@@ -72,14 +76,17 @@ def loss_name(predictor) -> str:
     return LOSS_NAMES.get(target.rsplit(".", 1)[-1], target.rsplit(".", 1)[-1] or "unknown")
 
 
-def load_encoder(run_dir: str | Path, settings: Settings, cache_dir: Path | None, taken: set[str]) -> EncoderRun:
-    """A run folder -> its predictor, world, decoder and the test views to evaluate."""
+def load_encoder(run_dir: str | Path, settings: Settings, cache_dir: Path | None, taken: set[str],
+                 world_dir: str | Path | None = None) -> EncoderRun:
+    """A run folder -> its predictor, world (run.json's, or world_dir), decoder and the test views to evaluate."""
     from ushape.reconstruction.predictor import load_predictor
 
     predictor = load_predictor(run_dir)
-    if predictor.world is None:
-        raise FileNotFoundError(f"{run_dir} has no run.json naming its data world: is it a finished encoder run?")
-    world = WorldIndex.load(predictor.world)
+    world_dir = world_dir or predictor.world
+    if world_dir is None:
+        raise FileNotFoundError(f"{run_dir} has no run.json naming its data world (an unfinished run?): "
+                                "pass the world folder with world=<outputs/data/synthetic/...>")
+    world = WorldIndex.load(world_dir)
     name = loss_name(predictor)
     if name in taken:  # two runs with one loss: keep both, told apart by their folder
         name = f"{name}:{Path(run_dir).name}"
@@ -89,7 +96,7 @@ def load_encoder(run_dir: str | Path, settings: Settings, cache_dir: Path | None
     decoder_dir = decoder_dir_of(predictor)
     tag = f"{decoder_dir.resolve()}|{(decoder_dir / 'decoder.pt').stat().st_mtime_ns}"
     reconstructor = Reconstructor(predictor.decoder, tag, world, settings.resolution, cache_dir,
-                                  n_points=settings.n_points)
+                                  n_points=settings.n_points, bf16=settings.bf16)
     ids = world.shape_ids(settings.split)[: settings.max_shapes]
     return EncoderRun(spec, predictor, world, reconstructor, decoder_dir, test_views(world, settings.split, ids))
 
@@ -104,7 +111,8 @@ def evaluate_encoder(run: EncoderRun, settings: Settings, cache_dir: Path | None
     if "single_view" in settings.protocols or "corrupted" in settings.protocols:
         scales = [1.0] if "corrupted" not in settings.protocols else list(dict.fromkeys([1.0, *settings.single_view_scales]))
         for scale in scales:
-            out["records"] += P.single_view_records(run.spec, encode(scale), rec, scale, emd=scale == 1.0)
+            encodings = encode(scale).first_views(settings.single_view_views)
+            out["records"] += P.single_view_records(run.spec, encodings, rec, scale, emd=scale == 1.0)
     if "multi_view" in settings.protocols:
         methods = P.fusion_methods(run.spec.probabilistic, range(1, settings.group_size))
         out["records"] += P.multi_view_records(run.spec, encode(1.0), groups, methods, rec, 1.0)
@@ -131,7 +139,8 @@ def setting_row(run: EncoderRun, settings: Settings, groups, encode, fuse: Calla
                 min_scale: float) -> dict:
     """One sweep row: single-view and fused multi-view IoU at the configured fusion rule and crop."""
     encodings = encode(min_scale)
-    single = P.summarise(P.single_view_records(run.spec, encodings, run.reconstructor, min_scale))[0]
+    single = P.summarise(P.single_view_records(run.spec, encodings.first_views(settings.single_view_views),
+                                               run.reconstructor, min_scale))[0]
     multi = P.summarise(P.multi_view_records(run.spec, encodings, groups, {method: fuse}, run.reconstructor,
                                              min_scale, quiet=False))[0]
     return {"encoder": run.spec.name, "label": run.spec.label, "fusion": method, "min_scale": float(min_scale),
@@ -141,21 +150,26 @@ def setting_row(run: EncoderRun, settings: Settings, groups, encode, fuse: Calla
 
 
 def evaluate_runs(run_dirs: Sequence[str | Path], settings: Settings, cache_dir: Path | None = None,
-                  setting: tuple[Callable, str, float] | None = None) -> dict[str, Any]:
+                  setting: tuple[Callable, str, float] | None = None, world_dir: str | Path | None = None,
+                  showcase_dir: Path | None = None) -> dict[str, Any]:
     """Load every run folder's encoder and evaluate them all (see `evaluate_all`)."""
     if not run_dirs:
         raise ValueError("no runs to evaluate: pass runs=[<run folder>, ...] or sweep=<multirun folder>")
     taken: set[str] = set()
-    runs = [load_encoder(run_dir, settings, cache_dir, taken) for run_dir in run_dirs]
-    result = evaluate_all(runs, settings, cache_dir, setting)
+    runs = [load_encoder(run_dir, settings, cache_dir, taken, world_dir) for run_dir in run_dirs]
+    result = evaluate_all(runs, settings, cache_dir, setting, showcase_dir)
     for run, run_dir in zip(runs, run_dirs):
         result["runs"][run.spec.name]["run_dir"] = str(run_dir)
     return result
 
 
 def evaluate_all(runs: Sequence[EncoderRun], settings: Settings, cache_dir: Path | None = None,
-                 setting: tuple[Callable, str, float] | None = None) -> dict[str, Any]:
-    """Every protocol for every encoder -> {records, summary, uncertainty, curves, rows, runs, settings, seconds}."""
+                 setting: tuple[Callable, str, float] | None = None, showcase_dir: Path | None = None,
+                 ) -> dict[str, Any]:
+    """Every protocol for every encoder -> {records, summary, uncertainty, curves, rows, runs, settings, seconds}.
+
+    With showcase_dir, the first shapes' reconstructions with uncertainty are saved there (see showcase).
+    """
     started = time.time()
     result: dict[str, Any] = {"records": [], "uncertainty": [], "curves": {"latent": {}, "sdf": {}}, "rows": [],
                               "runs": {}}
@@ -168,6 +182,10 @@ def evaluate_all(runs: Sequence[EncoderRun], settings: Settings, cache_dir: Path
             result["curves"][space].update(curves)
         result["runs"][run.spec.name] = {"checkpoint": str(run.predictor.checkpoint), "world": str(run.world.root),
                                          "label": run.spec.label}
+        if showcase_dir is not None and settings.showcase_shapes > 0:
+            encodings = encode_views(run.predictor, run.world, run.keys, 1.0, settings.seed, cache_dir)
+            save_showcase(run, encodings, showcase_dir, settings.group_size, settings.showcase_shapes,
+                          settings.resolution, settings.mc_samples)
     result["summary"] = P.summarise(result["records"])
     result["settings"] = {k: (list(v) if isinstance(v, (tuple, range)) else v) for k, v in vars(settings).items()}
     result["seconds"] = round(time.time() - started, 1)

@@ -69,6 +69,14 @@ class Encodings:
         rows = torch.tensor([index[k] for k in keys], dtype=torch.long)
         return self.mu[rows], self.var[rows]
 
+    def first_views(self, n_views: int | None) -> "Encodings":
+        """Only each shape's first n_views views (None: all)."""
+        if n_views is None:
+            return self
+        keys = [k for k in self.keys if k.view < n_views]
+        mu, var = self.select(keys)
+        return Encodings(keys, mu, var)
+
 
 def encoder_tag(predictor) -> str:
     """Identifies an encoder's outputs: checkpoint path, size, mtime and temperature."""

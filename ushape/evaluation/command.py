@@ -1,0 +1,65 @@
+"""What `python eval.py` does with its composed config: gather a sweep, or evaluate runs and write results."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+
+from ushape.evaluation.report import write_results
+from ushape.evaluation.runner import PROTOCOLS, Settings, evaluate_runs
+from ushape.evaluation.sources import resolve_runs
+
+log = logging.getLogger(__name__)
+
+
+def protocols_for(requested, multirun: bool) -> list[str]:
+    """`auto`: every protocol in a single run; none in a sweep's job (each job is one fusion/crop row)."""
+    if requested == "auto":
+        return [] if multirun else list(PROTOCOLS)
+    if isinstance(requested, str):
+        requested = [requested]
+    return list(requested)
+
+
+def _multirun() -> bool:
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+
+    return HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN
+
+
+def configured_setting(cfg: DictConfig):
+    """(fusion callable, its table name, crop min scale) from the `fusion` and `crop` groups."""
+    fuse = instantiate(cfg.fusion)
+    name = getattr(fuse, "name", type(fuse).__name__)
+    return fuse, name, float(cfg.crop.min_scale)
+
+
+def run_eval(cfg: DictConfig) -> float | None:
+    """Evaluate (or gather); returns the configured setting's mean multi-view IoU (what a sweeper maximises)."""
+    if cfg.get("gather"):
+        from ushape.experiment.gather import gather
+
+        markdown = gather(cfg.gather)
+        print(markdown.read_text())
+        return None
+    settings = Settings(**{**OmegaConf.to_container(cfg.settings, resolve=True),
+                           "protocols": protocols_for(cfg.protocols, _multirun())})
+    runs = resolve_runs(cfg.get("runs"), cfg.get("sweep"), cfg.paths.root_dir)
+    out_dir = Path(cfg.out_dir)
+    log.info("evaluating %d run(s) into %s: %s", len(runs), out_dir, ", ".join(map(str, runs)))
+    result = evaluate_runs(runs, settings, Path(cfg.cache_dir) if cfg.get("cache_dir") else None,
+                           setting=configured_setting(cfg), world_dir=cfg.get("world"),
+                           showcase_dir=out_dir if settings.protocols else None)
+    paths = write_results(result, out_dir, tensorboard=cfg.tensorboard)
+    if "tables" in paths:
+        print(paths["tables"].read_text())
+    for row in result["rows"]:
+        print(f"{row['label']:>10} {row['fusion']:>12} min_scale {row['min_scale']:g}: single-view IoU "
+              f"{row['single_view_iou']:.4f}, {row['group_size']}-view IoU {row['multi_view_iou']:.4f}")
+    print(f"Evaluation written to {out_dir} ({result['seconds']} s)")
+    rows = result["rows"]
+    return sum(r["multi_view_iou"] for r in rows) / len(rows) if rows else None

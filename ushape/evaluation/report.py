@@ -1,0 +1,120 @@
+"""Where an evaluation's results go: JSON, CSV and Markdown tables, PNG plots and TensorBoard.
+
+    <out_dir>/results.json      everything (records, summary, uncertainty rows, calibration curves)
+    <out_dir>/records.csv       one row per scored reconstruction
+    <out_dir>/summary.csv       one row per table cell
+    <out_dir>/table1.csv ... tables.md   the paper's tables
+    <out_dir>/eval_row.json     the configured fusion/crop setting's rows (what a sweep gathers)
+    <out_dir>/plots/*.png       calibration (latent, SDF), IoU vs K, IoU vs min scale
+    <out_dir>/tensorboard/      the same numbers and figures
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from pathlib import Path
+from typing import Any, Sequence
+
+from ushape import atomic
+from ushape.evaluation import plots, tables
+from ushape.evaluation.runner import RESULT_ROW, RESULTS
+
+PLOTS_DIR = "plots"
+
+
+def rows_to_csv(rows: Sequence[dict]) -> str:
+    """Dicts as CSV; the header is the union of keys in first-seen order."""
+    columns = list(dict.fromkeys(k for row in rows for k in row))
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, columns, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    return buffer.getvalue()
+
+
+def build_tables(result: dict[str, Any]) -> list[tables.Table]:
+    """The paper's tables that this evaluation has numbers for."""
+    summary, settings = result["summary"], result["settings"]
+    group = settings["group_size"]
+    built = [tables.table1(summary), tables.table3(summary, group), tables.table4(summary, settings["table4_k"]),
+             tables.table5(summary, group)]
+    if result.get("uncertainty"):
+        built.append(tables.table_s1(result["uncertainty"], summary))
+    return [t for t in built if t.rows]
+
+
+def build_figures(result: dict[str, Any]) -> dict[str, Any]:
+    """name -> matplotlib Figure for every plot this evaluation has data for."""
+    summary, settings = result["summary"], result["settings"]
+    figures = {}
+    for space, curves in result.get("curves", {}).items():
+        if curves:
+            title = "Calibration, latent space" if space == "latent" else "Calibration, SDF space"
+            figures[f"calibration_{space}"] = plots.plot_calibration(
+                {name: (c["p"], c["freq"]) for name, c in curves.items()}, title)
+    if any(r["protocol"] == "multi" and r["min_scale"] == 1.0 for r in summary):
+        figures["iou_vs_k"] = plots.iou_vs_k(summary, settings["group_size"])
+    if len({r["min_scale"] for r in summary if r["protocol"] == "multi"}) > 1:
+        figures["iou_vs_min_scale"] = plots.iou_vs_min_scale(summary, settings["table4_k"])
+    return figures
+
+
+def write_results(result: dict[str, Any], out_dir: str | Path, tensorboard: bool = True) -> dict[str, Path]:
+    """Write every output of an evaluation into out_dir; returns the main paths."""
+    out_dir = Path(out_dir)
+    atomic.write_json(out_dir / RESULTS, _finite(result))
+    atomic.write_json(out_dir / RESULT_ROW, _finite(result.get("rows", [])))
+    for name in ("records", "summary", "uncertainty"):
+        if result.get(name):
+            atomic.write_text(out_dir / f"{name}.csv", rows_to_csv(result[name]))
+    built = build_tables(result)
+    paths = {"results": out_dir / RESULTS}
+    if built:
+        paths["tables"] = tables.write_tables(built, out_dir)
+    figures = build_figures(result)
+    for name, fig in figures.items():
+        plots.save_figure(fig, out_dir / PLOTS_DIR / f"{name}.png")
+    if tensorboard:
+        paths["tensorboard"] = write_tensorboard(result, built, figures, out_dir / "tensorboard")
+    return paths
+
+
+def write_tensorboard(result: dict[str, Any], built: Sequence[tables.Table], figures: dict, log_dir: Path) -> Path:
+    """Summary cells and uncertainty rows as scalars, the plots as figures, the tables as text."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    writer = SummaryWriter(str(log_dir))
+    try:
+        for row in result["summary"]:
+            tag = f"{row['label']}/{row['protocol']}_{row['method']}_scale{row['min_scale']:g}"
+            for metric in ("iou", "cd", "emd"):
+                if metric in row and math.isfinite(row[metric]):
+                    writer.add_scalar(f"{tag}/{metric}", row[metric])
+        for row in result.get("uncertainty", []):
+            tag = f"{row['label']}/uncertainty_{row['space']}_{row['variance']}_{row['method']}"
+            for key, value in row.items():
+                if isinstance(value, float) and math.isfinite(value):
+                    writer.add_scalar(f"{tag}/{key}", value)
+        for row in result.get("rows", []):
+            writer.add_scalar(f"{row['label']}/sweep_{row['fusion']}_scale{row['min_scale']:g}/multi_view_iou",
+                              row["multi_view_iou"])
+        for name, fig in figures.items():
+            writer.add_figure(f"eval/{name}", fig)
+        for table in built:
+            writer.add_text(f"tables/{tables.slug(table.name)}", table.to_markdown())
+    finally:
+        writer.close()
+    return log_dir
+
+
+def _finite(obj: Any) -> Any:
+    """NaN/inf -> None so results.json is strict JSON (readable by any tool, not only Python)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    return obj
