@@ -84,8 +84,8 @@ def test_cli_reports_skipped_images_and_bad_fusion(tiny_run, tmp_path, capsys, m
     assert isinstance(build_fusion("bayesian_k", 3), BayesianKFusion) and build_fusion("bayesian_k", 3).k == 3
     with pytest.raises(ValueError, match="unknown fusion"):
         build_fusion("median")
-    assert main([str(tmp_path / "nothing.png"), "--run", str(tiny_run["run"])]) == 2
-    assert "none of the 1 input" in capsys.readouterr().err
+    assert main([str(tmp_path / "nothing.png"), "--run", str(tiny_run["run"]), "--out", str(tmp_path / "o")]) == 2
+    assert "none of the 1 input" in capsys.readouterr().err and not (tmp_path / "o").exists()
     monkeypatch.setattr("ushape.reconstruction.predictor.latest_run", lambda root: tiny_run["run"])
     assert main(["--fit-temperature"]) == 0
     record = json.loads((tiny_run["checkpoint"].parent / "temperature.json").read_text())

@@ -94,11 +94,11 @@ def reconstruct(
     """Run the whole reconstruction of one object from its views and write every output; returns the summary."""
     if settings.uncertainty not in METHODS:
         raise ValueError(f"uncertainty must be one of {METHODS}, got {settings.uncertainty!r}")
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     timer, generator = Timer(), torch.Generator().manual_seed(settings.seed)
     with timer("load_images"):
         images, paths, skipped = predictor.load_images(list(inputs))
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
     with timer("encode"):
         mu, var = predictor.encode(images)
     with timer("fuse"):

@@ -1,0 +1,65 @@
+"""bench.py in a tiny configuration: every row and ratio is present, numbers are positive, the file is written."""
+
+import re
+
+import torch
+
+from ushape.bench.cli import main
+from ushape.bench.computation import Measurement, bench_decoder
+from ushape.bench.report import DecoderBench, ratio_rows
+
+DECODER_ROWS = [
+    "decoder field fp32", "decoder field bf16", "marching cubes", "mesh dense (field + MC)", "mesh coarse-to-fine",
+    "vertex uncertainty mc M=10", "vertex uncertainty linearised", "field uncertainty mc M=10",
+    "field uncertainty linearised", "mesh with uncertainty (coarse-to-fine + vertex linearised)",
+    "mesh with uncertainty (coarse-to-fine + vertex mc M=10)",
+]
+
+
+def _seconds(cell):
+    value, unit = cell.split()
+    return float(value) * (1e-3 if unit == "ms" else 1.0)
+
+
+def test_quick_bench_writes_the_whole_table(tmp_path, capsys):
+    out = tmp_path / "bench.md"
+    assert main(["--quick", "--resolution", "16", "--deepsdf-fraction", "0.25", "--out", str(out)]) == 0
+    text = out.read_text()
+    assert text in capsys.readouterr().out
+    rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]] for line in text.splitlines()
+            if line.startswith("| ") and not line.startswith("| step") and not line.startswith("| ratio")}
+    for name in DECODER_ROWS:
+        small, deepsdf = rows[name][:2]
+        assert _seconds(small) > 0 and _seconds(deepsdf) > 0, name
+    assert rows["decoder field fp32"][2] == "0.55 s" and rows["field uncertainty mc M=10"][2] == "5.45 s"
+    assert "extrapolated from 25%" in rows["field uncertainty mc M=10"][3]
+    assert _seconds(rows["fusion bayesian"][0]) > 0 and rows["fusion bayesian"][1] == "0.1 ms"
+    assert re.search(r"< 0\.1 ms (pass|miss)", rows["fusion bayesian"][2])
+    ratios = [line for line in text.splitlines() if line.startswith("| ") and "x |" in line]
+    assert len(ratios) == 12  # 6 ratios x 2 decoders
+    assert sum(("pass" in r) or ("miss" in r) for r in ratios) == 8
+
+
+def test_ratios_and_verdicts_from_known_timings():
+    bench = DecoderBench("d", "test", 1, [
+        Measurement("decoder field fp32", 1.0), Measurement("decoder field bf16", 0.5),
+        Measurement("mesh dense (field + MC)", 1.2), Measurement("mesh coarse-to-fine", 0.4),
+        Measurement("vertex uncertainty mc M=10", 0.2), Measurement("vertex uncertainty linearised", 0.02),
+        Measurement("field uncertainty mc M=10", 10.0), Measurement("field uncertainty linearised", 1.5),
+    ])
+    got = {name: (value, passed) for name, value, _, passed in ratio_rows(bench)}
+    assert got["coarse-to-fine mesh / dense mesh"] == (0.4 / 1.2, None)
+    assert got["field w/ unc (linearised) / field"] == (1.5, True)
+    assert got["field w/ unc (MC M=10) / field"] == (10.0, False)
+    assert got["mesh w/ unc (linearised) / mesh, coarse-to-fine"][1] is True  # 1.05x
+    assert got["mesh w/ unc (MC M=10) / mesh, coarse-to-fine"][1] is False  # 1.5x
+    assert got["field bf16 / field fp32"] == (0.5, None)
+
+
+def test_random_decoder_is_shifted_to_have_a_surface():
+    decoder, code, provenance = bench_decoder("small")
+    from ushape.propagation.mesh import decode_field
+
+    field = decode_field(decoder, code, 16)
+    assert provenance == "random weights" and (field < 0).any() and (field > 0).any()
+    assert abs(float(field.median())) < 0.05 and code.shape == (64,)

@@ -1,0 +1,57 @@
+"""Command line of bench.py.
+
+    python bench.py                       resolution 128, decoders small and deepsdf (8 x 512)
+    python bench.py --quick               resolution 32, few repeats: a smoke run (seconds)
+    python bench.py --skip-slow           no MC field for any decoder
+    python bench.py --decoder-dir DIR     time a trained decoder folder in place of the random `small`
+
+The 8 x 512 decoder's uncertainty fields are timed on --deepsdf-fraction of the grid points
+(default 1/8) and scaled up linearly; the table marks those rows as extrapolated.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from typing import Sequence
+
+from ushape import atomic
+from ushape.bench.computation import BenchSettings, run_bench
+from ushape.bench.report import markdown_report
+
+DEFAULT_OUT_DIR = Path("outputs") / "bench"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description="Time the paper's computation table on this machine.")
+    parser.add_argument("--quick", action="store_true", help="resolution 32, 1 repeat, 200 fusion repeats")
+    parser.add_argument("--resolution", type=int, default=None, help="grid points per axis (default 128)")
+    parser.add_argument("--decoders", nargs="+", default=["small", "deepsdf"], help="conf/decoder/ names")
+    parser.add_argument("--decoder-dir", default=None, help="trained decoder folder used for `small`")
+    parser.add_argument("--repeats", type=int, default=1, help="repeats of each decoder-heavy row (median)")
+    parser.add_argument("--deepsdf-fraction", type=float, default=0.125,
+                        help="fraction of grid points timed for deepsdf's uncertainty fields (1: all)")
+    parser.add_argument("--skip-slow", action="store_true", help="skip the Monte Carlo field rows")
+    parser.add_argument("--out", default=None, help=f"report file (default {DEFAULT_OUT_DIR}/bench_<date>.md)")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.deepsdf_fraction <= 0 or args.deepsdf_fraction > 1:
+        raise SystemExit(f"--deepsdf-fraction must be in (0, 1], got {args.deepsdf_fraction}")
+    resolution = args.resolution or (32 if args.quick else 128)
+    settings = BenchSettings(resolution=resolution, repeats=args.repeats, skip_slow=args.skip_slow,
+                             fusion_repeats=200 if args.quick else 2000)
+    decoders = {name: (args.decoder_dir if name == "small" else None) for name in args.decoders}
+    started = time.time()
+    shared, benches = run_bench(settings, decoders, {"deepsdf": args.deepsdf_fraction},
+                                encoders=(("efficientnet_lite0", 96),) if args.quick else
+                                (("efficientnet_lite0", 96), ("resnet50", 224)))
+    report = markdown_report(shared, benches, settings) + f"\nTotal bench time {time.time() - started:.0f} s.\n"
+    out = Path(args.out) if args.out else DEFAULT_OUT_DIR / f"bench_{time.strftime('%Y-%m-%d')}.md"
+    atomic.write_text(out, report)
+    print(report)
+    print(f"written to {out}")
+    return 0

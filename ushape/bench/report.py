@@ -1,0 +1,137 @@
+"""The computation table as Markdown: our timings beside the paper's A100 figures, ratios with targets."""
+
+from __future__ import annotations
+
+import os
+import platform
+from typing import Sequence
+
+import torch
+
+from ushape.bench.computation import BenchSettings, DecoderBench, Measurement
+
+# The paper's computation table (one A100, 8 x 512 DeepSDF decoder, resolution 128), seconds.
+MESH_WITH_UNCERTAINTY = "mesh with uncertainty (coarse-to-fine + vertex linearised)"
+MESH_WITH_UNCERTAINTY_MC = "mesh with uncertainty (coarse-to-fine + vertex mc M=10)"
+PAPER_A100_S = {
+    "decoder field fp32": 0.55,
+    "mesh dense (field + MC)": 0.68,
+    MESH_WITH_UNCERTAINTY: 0.69,
+    "field uncertainty mc M=10": 5.45,
+    "fusion bayesian": 0.1e-3,
+}
+FIELD_TARGET, MESH_TARGET, FUSION_TARGET_S = 2.0, 1.10, 0.1e-3
+
+
+def with_derived_rows(bench: DecoderBench) -> list[Measurement]:
+    """The measured rows plus mesh-with-uncertainty sums (coarse-to-fine mesh + vertex std)."""
+    rows = list(bench.rows)
+    c2f = bench.seconds("mesh coarse-to-fine")
+    for label, prefix in ((MESH_WITH_UNCERTAINTY, "vertex uncertainty linearised"),
+                          (MESH_WITH_UNCERTAINTY_MC, "vertex uncertainty mc")):
+        extra = bench.seconds(prefix)
+        if c2f is not None and extra is not None:
+            rows.append(Measurement(label, c2f + extra, note="sum of its two rows"))
+    return rows
+
+
+def _paper(name: str) -> str:
+    seconds = PAPER_A100_S.get(name)
+    if seconds is None:
+        return ""
+    return f"{seconds * 1e3:.2g} ms" if seconds < 0.01 else f"{seconds:.2f} s"
+
+
+def _fmt(seconds: float | None) -> str:
+    if seconds is None:
+        return "not run"
+    if seconds < 0.01:
+        return f"{seconds * 1e3:.3g} ms"
+    return f"{seconds:.3g} s"
+
+
+def _note(row: Measurement | None) -> str:
+    if row is None:
+        return ""
+    parts = [row.note] if row.note else []
+    if row.extrapolated_from is not None:
+        parts.append(f"extrapolated from {row.extrapolated_from:.0%} of the grid points")
+    return "; ".join(parts)
+
+
+def _ratio(num: float | None, den: float | None) -> float | None:
+    return None if num is None or den is None or den == 0 else num / den
+
+
+def _total(bench: DecoderBench, *prefixes: str) -> float | None:
+    """Sum of the rows starting with each prefix; None if any is missing."""
+    parts = [bench.seconds(p) for p in prefixes]
+    return None if any(p is None for p in parts) else sum(parts)
+
+
+def ratio_rows(bench: DecoderBench) -> list[tuple[str, float | None, str, bool | None]]:
+    """(ratio name, value, target text, passed or None where there is no target) for one decoder."""
+    field = bench.seconds("decoder field")
+    mesh = bench.seconds("mesh coarse-to-fine")
+    lin = _ratio(bench.seconds("field uncertainty linearised"), field)
+    mc = _ratio(bench.seconds("field uncertainty mc"), field)
+    mesh_lin = _ratio(_total(bench, "mesh coarse-to-fine", "vertex uncertainty linearised"), mesh)
+    mesh_mc = _ratio(_total(bench, "mesh coarse-to-fine", "vertex uncertainty mc"), mesh)
+    bf16 = next((r.seconds for r in bench.rows if r.name.startswith("decoder field") and "bf16" in r.name), None)
+
+    def check(value: float | None, target: float) -> bool | None:
+        return None if value is None else value <= target
+
+    return [
+        ("coarse-to-fine mesh / dense mesh", _ratio(mesh, bench.seconds("mesh dense")), "(lower is better)", None),
+        ("field w/ unc (linearised) / field", lin, f"<= {FIELD_TARGET:g}x", check(lin, FIELD_TARGET)),
+        ("field w/ unc (MC M=10) / field", mc, f"<= {FIELD_TARGET:g}x", check(mc, FIELD_TARGET)),
+        ("mesh w/ unc (linearised) / mesh, coarse-to-fine", mesh_lin, f"<= {MESH_TARGET:.2f}x", check(mesh_lin, MESH_TARGET)),
+        ("mesh w/ unc (MC M=10) / mesh, coarse-to-fine", mesh_mc, f"<= {MESH_TARGET:.2f}x", check(mesh_mc, MESH_TARGET)),
+        ("field bf16 / field fp32", _ratio(bf16, field), "(< 1: bf16 faster)", None),
+    ]
+
+
+def _verdict(passed: bool | None) -> str:
+    return "" if passed is None else ("pass" if passed else "miss")
+
+
+def markdown_report(shared: Sequence[Measurement], benches: Sequence[DecoderBench], settings: BenchSettings) -> str:
+    """The whole report: machine, per-step table (one column per decoder), ratios with pass/miss."""
+    lines = [
+        f"# Computation table at resolution {settings.resolution} (grids of {settings.resolution}^3; "
+        "this machine vs the paper's A100)",
+        "",
+        f"Machine: {platform.processor() or platform.machine()}, torch {torch.__version__}, "
+        f"{torch.get_num_threads()} threads, CPU only, 1-min load average {os.getloadavg()[0]:.1f} when written "
+        "(other jobs on the machine slow every row alike). Medians of {settings.repeats} run(s) per decoder row, "
+        f"{settings.fusion_repeats} per fusion row.",
+        "",
+    ]
+    for bench in benches:
+        lines.append(f"- decoder `{bench.name}`: {bench.parameters:,} parameters, {bench.provenance}")
+    lines += ["", "| step | " + " | ".join(f"{b.name}" for b in benches) + " | paper A100 (8x512) | notes |",
+              "|---|" + "---|" * len(benches) + "---|---|"]
+    tables = [with_derived_rows(b) for b in benches]
+    names = list(dict.fromkeys(r.name for rows in tables for r in rows))
+    for name in names:
+        found = [next((r for r in rows if r.name == name), None) for rows in tables]
+        per_decoder = {b.name: _note(r) for b, r in zip(benches, found) if _note(r)}
+        if len(set(per_decoder.values())) == 1 and len(per_decoder) == len(benches):
+            notes = next(iter(per_decoder.values()))
+        else:
+            notes = "; ".join(f"{name}: {note}" for name, note in per_decoder.items())
+        cells = " | ".join(_fmt(r.seconds if r else None) for r in found)
+        lines.append(f"| {name} | {cells} | {_paper(name)} | {notes} |")
+    lines += ["", "| step (decoder-independent) | time | paper A100 | target | notes |", "|---|---|---|---|---|"]
+    for row in shared:
+        target, verdict = "", ""
+        if row.name == "fusion bayesian":
+            target, verdict = "< 0.1 ms", _verdict(row.seconds < FUSION_TARGET_S)
+        lines.append(f"| {row.name} | {_fmt(row.seconds)} | {_paper(row.name)} | {target} {verdict} | {_note(row)} |")
+    lines += ["", "| ratio | decoder | value | target | result |", "|---|---|---|---|---|"]
+    for bench in benches:
+        for name, value, target, passed in ratio_rows(bench):
+            shown = "not run" if value is None else f"{value:.2f}x"
+            lines.append(f"| {name} | {bench.name} | {shown} | {target} | {_verdict(passed)} |")
+    return "\n".join(lines) + "\n"
