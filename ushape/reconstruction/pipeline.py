@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
@@ -120,7 +120,7 @@ def reconstruct(
         overview_figure(images, shown, overview, float(files["std_max"]), settings.cmap, fused.kept.tolist())
     with timer("depth_uncertainty"):
         depth = depth_maps(predictor, fused, images, paths, out_dir, settings, generator)
-    return write_summary(out_dir, predictor, fusion, settings, paths, skipped, mu, var, fused, mesh, std, stats,
+    return write_summary(out_dir, predictor, fusion, settings, paths, skipped, var, fused, mesh, std, stats,
                          files, overview, depth, timer.seconds)
 
 
@@ -151,8 +151,11 @@ def depth_maps(
     return records
 
 
-def write_summary(out_dir, predictor, fusion, settings, paths, skipped, mu, var, fused, mesh, std, stats,
-                  files, overview, depth, seconds) -> dict[str, Any]:
+def write_summary(
+    out_dir: Path, predictor: Predictor, fusion: Fusion, settings: ReconstructionSettings, paths: Sequence[Path],
+    skipped: Sequence[tuple[Path, str]], var: Tensor, fused: FusedCode, mesh: trimesh.Trimesh,
+    std: np.ndarray, stats: Any, files: dict, overview: Path, depth: list[dict], seconds: dict[str, float],
+) -> dict[str, Any]:
     """summary.json: inputs, per-view uncertainty (trace of var), fusion's kept views, mesh, timings, paths."""
     kept = set(fused.kept.tolist())
     summary = {
@@ -160,9 +163,9 @@ def write_summary(out_dir, predictor, fusion, settings, paths, skipped, mu, var,
         "temperature": predictor.temperature,
         "fusion": getattr(fusion, "name", type(fusion).__name__),
         "uncertainty": settings.uncertainty,
-        "settings": {k: v for k, v in settings.__dict__.items()},
+        "settings": asdict(settings),
         "views": [
-            {"image": str(p), "trace_var": float(var[i].sum()), "kept": i in kept, **{"depth": depth[i]}}
+            {"image": str(p), "trace_var": float(var[i].sum()), "kept": i in kept, "depth": depth[i]}
             for i, p in enumerate(paths)
         ],
         "skipped": [{"image": str(p), "reason": why} for p, why in skipped],
