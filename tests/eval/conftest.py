@@ -78,7 +78,8 @@ def build_sphere_world(root):
     for folder in ("splits", "meshes", "sdf", "renders", "shapes"):
         (root / folder).mkdir(parents=True, exist_ok=True)
     (root / "config.json").write_text(json.dumps({"category": "spheres", "n_views": N_VIEWS, "image_size": IMAGE}))
-    for split, ids in (("train", []), ("val", []), ("test", list(RADII))):
+    # The same shapes in every split, so a real encoder can be fitted on this world in a test.
+    for split, ids in (("train", list(RADII)), ("val", list(RADII)), ("test", list(RADII))):
         (root / "splits" / f"{split}.json").write_text(json.dumps(ids))
     for shape_id, radius in RADII.items():
         mesh = trimesh.creation.icosphere(subdivisions=3, radius=1.0)

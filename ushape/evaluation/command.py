@@ -48,7 +48,8 @@ def run_eval(cfg: DictConfig) -> float | None:
         return None
     settings = Settings(**{**OmegaConf.to_container(cfg.settings, resolve=True),
                            "protocols": protocols_for(cfg.protocols, _multirun())})
-    runs = resolve_runs(cfg.get("runs"), cfg.get("sweep"), cfg.paths.root_dir)
+    given = cfg.get("runs") or cfg.get("sweep")
+    runs = resolve_runs(cfg.get("runs"), cfg.get("sweep"), "." if given else cfg.paths.root_dir)
     out_dir = Path(cfg.out_dir)
     log.info("evaluating %d run(s) into %s: %s", len(runs), out_dir, ", ".join(map(str, runs)))
     result = evaluate_runs(runs, settings, Path(cfg.cache_dir) if cfg.get("cache_dir") else None,
