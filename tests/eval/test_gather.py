@@ -21,7 +21,7 @@ def _row(label, fusion, scale, iou):
 
 def test_gather_orders_jobs_numerically_and_keeps_their_overrides(tmp_path, capsys):
     _job(tmp_path, "10_fusion.k=10", ["fusion=bayesian_k", "fusion.k=10"], [_row("Ours", "bayesian-10", 1.0, 0.5)])
-    _job(tmp_path, "2_fusion.k=2", ["fusion=bayesian_k", "fusion.k=2"],
+    _job(tmp_path, "2_fusion.k=2", ["fusion=bayesian_k", "fusion.k=2", "runs=[/a,/b]"],
          [_row("Ours", "bayesian-2", 1.0, 0.6), _row("FroDO*", "bayesian-2", 1.0, None)])
     rows = gather_rows(tmp_path)
     assert [(r["job"], r["label"]) for r in rows] == [("2_fusion.k=2", "Ours"), ("2_fusion.k=2", "FroDO*"),

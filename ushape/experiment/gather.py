@@ -23,6 +23,8 @@ from ushape.evaluation.report import rows_to_csv
 from ushape.evaluation.runner import RESULT_ROW
 
 GATHERED = "gathered"
+# Overrides that name folders, not settings: left out of the table's `overrides` column.
+FOLDER_KEYS = ("runs", "sweep", "world", "cache_dir", "out_dir")
 COLUMNS = ("job", "overrides", "label", "fusion", "min_scale", "single_view_iou", "multi_view_iou",
            "single_view_cd", "multi_view_cd", "n_views", "n_instances")
 
@@ -32,7 +34,7 @@ def gather_rows(sweep: str | Path) -> list[dict[str, Any]]:
     sweep = Path(sweep).expanduser()
     if not sweep.is_dir():
         raise FileNotFoundError(f"sweep folder {sweep} does not exist")
-    files = sorted(sweep.glob(f"*/{RESULT_ROW}"), key=lambda p: _job_order(p.parent.name))
+    files = sorted(sweep.rglob(RESULT_ROW), key=lambda p: _job_order(p.parent.relative_to(sweep).as_posix()))
     if not files:
         raise FileNotFoundError(f"no <job>/{RESULT_ROW} under {sweep}: is it an evaluation sweep "
                                 "(`python eval.py -m ...`)? A training sweep is evaluated with `python eval.py sweep=...`")
@@ -42,7 +44,8 @@ def gather_rows(sweep: str | Path) -> list[dict[str, Any]]:
         overrides_file = job / ".hydra" / "overrides.yaml"
         overrides = yaml.safe_load(overrides_file.read_text()) if overrides_file.is_file() else []
         for row in json.loads(path.read_text()):
-            rows.append({"job": job.name, "overrides": " ".join(overrides or []), **row})
+            settings = [o for o in overrides or [] if o.split("=", 1)[0].lstrip("+~") not in FOLDER_KEYS]
+            rows.append({"job": job.relative_to(sweep).as_posix(), "overrides": " ".join(settings), **row})
     return rows
 
 
