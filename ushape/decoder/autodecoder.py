@@ -132,7 +132,7 @@ class AutoDecoderModule(L.LightningModule):
 
     def _ground_truth(self, mesh_path: str) -> tuple[trimesh.Trimesh, np.ndarray]:
         if mesh_path not in self._gt_cache:
-            mesh = trimesh.load(mesh_path, force="mesh")
+            mesh = trimesh.load(mesh_path, force="mesh", process=False)  # merging vertices can break manifoldness
             self._gt_cache[mesh_path] = (mesh, occupancy_grid(mesh_inside_fn(mesh), self.hparams.val_iou_resolution))
         return self._gt_cache[mesh_path]
 
