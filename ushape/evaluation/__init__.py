@@ -1,5 +1,16 @@
-"""Evaluation: reconstruction metrics, calibration plots and proper scores for predicted uncertainty.
+"""Evaluation: the paper's metrics, protocols, tables and plots (what `python eval.py` runs).
 
-Import the module you need (e.g. `ushape.evaluation.calibration`); this package imports
-nothing itself, so `import ushape.evaluation.scores` does not pull in matplotlib.
+    metrics               Pix3D's IoU (32^3 voxels), Chamfer and EMD (1024 points), per-shape unit boxes
+    uncertainty           latent / SDF-space ES and NLL, surface split, SDF propagation with clamping
+    calibration, scores   calibration curves and univariate Gaussian proper scores
+    views                 deterministic corrupted views and cached encodings
+    reconstruct           code -> SDF grid -> mesh and voxels -> metrics, cached by the code's hash
+    protocols             single view, multi view (instances of 10 views), corrupted views -> records
+    uncertainty_protocol  Table S1 rows and calibration curves with the equal-variance baseline
+    runner, sources       which runs, and every protocol for each of their encoders
+    tables, plots, report, showcase   the paper's tables, figures, result files, meshes with uncertainty
+    command               eval.py's config -> evaluation or sweep gathering
+
+Import the module you need; this package imports nothing itself, so `import ushape.evaluation.scores`
+does not pull in matplotlib.
 """

@@ -74,7 +74,7 @@ def table1(summary: Sequence[dict]) -> Table:
     """Single-view reconstruction: IoU, EMD, CD per encoder (uncorrupted views)."""
     cells = _cells(summary)
     table = Table("Table 1: single-view reconstruction", "Pix3D protocol: IoU on 32^3 voxels, EMD and CD on 1024 "
-                  "surface points, each shape normalised to a centred unit bounding box; mean over all test views.",
+                  "surface points, each shape normalised to a centred unit bounding box; mean over the n evaluated test views.",
                   ["Method", "Shape", "IoU ↑", "EMD ↓", "CD ↓", "n"])
     for encoder, label in encoder_order(summary):
         cell = cells.get((encoder, "single", 1.0, SINGLE_VIEW))

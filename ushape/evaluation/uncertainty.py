@@ -21,7 +21,7 @@ from torch import Tensor
 from ushape.encoder.losses import energy_score, gaussian_nll
 from ushape.evaluation.calibration import calibration_curve, calibration_error
 from ushape.evaluation.scores import energy_score_1d, gaussian_nll_1d
-from ushape.propagation import propagate
+from ushape.propagation import propagate, propagate_mc
 
 SURFACE_BAND = 0.01
 EQUAL_VARIANCE = 1.0
@@ -85,8 +85,6 @@ def propagate_to_sdf(decoder, mu: Tensor, var: Tensor, points: Tensor, method: s
     """
     generator = torch.Generator().manual_seed(seed)
     if method == "mc" and clamp is not None:
-        from ushape.propagation.monte_carlo import propagate_mc
-
         _, _, samples = propagate_mc(decoder, mu, var, points, n_samples, generator, bf16=bf16, return_samples=True)
         samples = samples.clamp(-clamp, clamp)
         return samples.mean(dim=0), samples.var(dim=0, correction=1)
