@@ -54,7 +54,8 @@ def run_eval(cfg: DictConfig) -> float | None:
     log.info("evaluating %d run(s) into %s: %s", len(runs), out_dir, ", ".join(map(str, runs)))
     result = evaluate_runs(runs, settings, Path(cfg.cache_dir) if cfg.get("cache_dir") else None,
                            setting=configured_setting(cfg), world_dir=cfg.get("world"),
-                           showcase_dir=out_dir if settings.protocols else None)
+                           showcase_dir=out_dir if settings.protocols else None,
+                           temperature=bool(cfg.get("temperature", False)))
     paths = write_results(result, out_dir, tensorboard=cfg.tensorboard)
     if "tables" in paths:
         print(paths["tables"].read_text())

@@ -77,11 +77,16 @@ def loss_name(predictor) -> str:
 
 
 def load_encoder(run_dir: str | Path, settings: Settings, cache_dir: Path | None, taken: set[str],
-                 world_dir: str | Path | None = None) -> EncoderRun:
-    """A run folder -> its predictor, world (run.json's, or world_dir), decoder and the test views to evaluate."""
-    from ushape.reconstruction.predictor import load_predictor
+                 world_dir: str | Path | None = None, temperature: bool = False) -> EncoderRun:
+    """A run folder -> its predictor, world (run.json's, or world_dir), decoder and the test views to evaluate.
+
+    temperature=True scales the predicted variances by the temperature stored beside the checkpoint.
+    """
+    from ushape.reconstruction.predictor import load_predictor, read_temperature
 
     predictor = load_predictor(run_dir)
+    if temperature and predictor.model.predicts_variance:  # FroDO* has no variance to scale
+        predictor.temperature = read_temperature(predictor.checkpoint)
     world_dir = world_dir or predictor.world
     if world_dir is None:
         raise FileNotFoundError(f"{run_dir} has no run.json naming its data world (an unfinished run?): "
@@ -151,12 +156,12 @@ def setting_row(run: EncoderRun, settings: Settings, groups, encode, fuse: Calla
 
 def evaluate_runs(run_dirs: Sequence[str | Path], settings: Settings, cache_dir: Path | None = None,
                   setting: tuple[Callable, str, float] | None = None, world_dir: str | Path | None = None,
-                  showcase_dir: Path | None = None) -> dict[str, Any]:
+                  showcase_dir: Path | None = None, temperature: bool = False) -> dict[str, Any]:
     """Load every run folder's encoder and evaluate them all (see `evaluate_all`)."""
     if not run_dirs:
         raise ValueError("no runs to evaluate: pass runs=[<run folder>, ...] or sweep=<multirun folder>")
     taken: set[str] = set()
-    runs = [load_encoder(run_dir, settings, cache_dir, taken, world_dir) for run_dir in run_dirs]
+    runs = [load_encoder(run_dir, settings, cache_dir, taken, world_dir, temperature) for run_dir in run_dirs]
     result = evaluate_all(runs, settings, cache_dir, setting, showcase_dir)
     for run, run_dir in zip(runs, run_dirs):
         result["runs"][run.spec.name]["run_dir"] = str(run_dir)
