@@ -44,7 +44,7 @@ class Settings:
     corrupted_scales: Sequence[float] = (0.8, 0.4, 0.2, 0.1, 0.01)
     sdf_points: int = 1024
     mc_samples: int = 10
-    sdf_max_views: int | None = None
+    sdf_views: int | None = None
     sdf_clamp: float | None = 0.1
     calibration_levels: int = 20
     max_shapes: int | None = None
@@ -131,7 +131,7 @@ def evaluate_encoder(run: EncoderRun, settings: Settings, cache_dir: Path | None
         codes = load_codes(run.codes_dir / codes_file(settings.split))
         rows, latent_curves = latent_rows(run.spec, encodings, codes, settings.calibration_levels)
         sdf, sdf_curves = sdf_rows(run.spec, encodings, run.predictor.decoder, run.world, settings.sdf_points,
-                                   settings.mc_samples, settings.sdf_clamp, settings.sdf_max_views,
+                                   settings.mc_samples, settings.sdf_clamp, settings.sdf_views,
                                    settings.calibration_levels)
         out["uncertainty"] = rows + sdf
         out["curves"] = {"latent": curves_to_json(latent_curves), "sdf": curves_to_json(sdf_curves)}

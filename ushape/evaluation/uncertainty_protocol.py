@@ -59,12 +59,12 @@ def latent_rows(spec: EncoderSpec, encodings: Encodings, codes: CodeTable, n_lev
 
 
 def sdf_rows(spec: EncoderSpec, encodings: Encodings, decoder, world: WorldIndex, n_points: int = 1024,
-             n_samples: int = 10, clamp: float | None = 0.1, max_views: int | None = None, n_levels: int = 20,
+             n_samples: int = 10, clamp: float | None = 0.1, views_per_shape: int | None = None, n_levels: int = 20,
              methods: tuple[str, ...] = PROPAGATION_METHODS) -> tuple[list, dict]:
     """SDF-space ES / NLL per region and calibration error, per (variance variant, propagation method)."""
-    keys = encodings.keys if max_views is None else encodings.keys[:max_views]
+    encodings = encodings.first_views(views_per_shape)
     pools: dict[tuple[str, str], list[tuple[Tensor, Tensor, Tensor]]] = {}
-    for i, key in enumerate(tqdm(keys, desc=f"{spec.name} SDF uncertainty", leave=False)):
+    for i, key in enumerate(tqdm(encodings.keys, desc=f"{spec.name} SDF uncertainty", leave=False)):
         points, sdf_true = sdf_points(world, key.shape_id, n_points)
         if clamp is not None:
             sdf_true = sdf_true.clamp(-clamp, clamp)
