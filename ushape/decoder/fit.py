@@ -68,6 +68,7 @@ def fit_decoder(
     for split in ("val", "test"):
         save_codes(out_dir / codes_file(split), reconstruct_split(model, world_root, split, latent_optim))
     atomic.write_json(out_dir / DONE_FILE, {
+        "world_root": str(Path(world_root).resolve()),
         "epochs": fitter.current_epoch,
         "train_seconds": round(train_seconds, 1),
         "total_seconds": round(time.time() - started, 1),
