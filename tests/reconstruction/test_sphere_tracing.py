@@ -26,7 +26,7 @@ def test_sphere_trace_hits_at_distance_minus_radius():
     origins = torch.tensor([[0.0, 0.0, -2.5]])
     directions = torch.tensor([[0.0, 0.0, 2.0]])  # not unit: t is along d
     radii = torch.tensor([0.5, 0.7])
-    t, hit = sphere_trace(lambda p: p.norm(dim=-1) - radii[:, None], origins, directions, 2, eps=1e-5)
+    t, hit = sphere_trace(lambda p, m: p.norm(dim=-1) - radii[m], origins, directions, 2, eps=1e-5)
     assert hit.all()
     assert torch.allclose(t[:, 0] * 2.0, 2.5 - radii, atol=1e-4)
 

@@ -18,7 +18,7 @@ from torch import Tensor
 from ushape.data.rendering import pixel_rays
 from ushape.propagation.decoding import frozen
 
-BatchSDF = Callable[[Tensor], Tensor]  # points [M, P, 3] -> sdf [M, P]
+BatchSDF = Callable[[Tensor, Tensor], Tensor]  # (points [N, 3], code index [N]) -> sdf [N]
 
 
 class DepthStats(NamedTuple):
@@ -54,24 +54,27 @@ def sphere_trace(
     active = (far > near).expand(n_codes, -1).clone()
     hit = torch.zeros_like(active)
     for _ in range(steps):
-        if not active.any():
+        # Only rays still marching are evaluated: most finish or leave the cube within a few steps.
+        code, pixel = active.nonzero(as_tuple=True)
+        if code.numel() == 0:
             break
-        points = origins + t[..., None] * directions  # [M, P, 3]
-        values = sdf(points)
-        converged = active & (values.abs() < eps)
-        hit |= converged
+        t_now = t[code, pixel]
+        values = sdf(origins[pixel] + t_now[:, None] * directions[pixel], code)
+        converged = values.abs() < eps
+        hit[code[converged], pixel[converged]] = True
         # A ray that starts inside the surface (negative SDF) is stepped back onto it as well.
-        t = torch.where(active & ~converged, t + values / norm, t)
-        active &= ~converged & (t <= far) & (t >= near - eps)
+        t_next = torch.where(converged, t_now, t_now + values / norm[pixel])
+        t[code, pixel] = t_next
+        active[code, pixel] = ~converged & (t_next <= far[pixel]) & (t_next >= near[pixel] - eps)
     return t, hit
 
 
 def codes_sdf(decoder: torch.nn.Module, codes: Tensor) -> BatchSDF:  # codes [M, D]
-    """points [M, P, 3] -> sdf [M, P], code m for the m-th row of points, without gradients."""
+    """(points [N, 3], code index [N]) -> sdf [N] of each point under its code, without gradients."""
 
-    def sdf(points: Tensor) -> Tensor:
+    def sdf(points: Tensor, which: Tensor) -> Tensor:
         with torch.no_grad():
-            return decoder(points, codes[:, None, :]).float()
+            return decoder(points, codes[which]).float()
 
     return sdf
 
