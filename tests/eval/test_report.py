@@ -1,7 +1,6 @@
 """Tables, plots and result files of an evaluation; the grid inside test; run discovery."""
 
 import json
-import math
 
 import numpy as np
 import pytest
