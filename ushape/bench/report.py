@@ -104,7 +104,7 @@ def markdown_report(shared: Sequence[Measurement], benches: Sequence[DecoderBenc
         "",
         f"Machine: {platform.processor() or platform.machine()}, torch {torch.__version__}, "
         f"{torch.get_num_threads()} threads, CPU only, 1-min load average {os.getloadavg()[0]:.1f} when written "
-        "(other jobs on the machine slow every row alike). Medians of {settings.repeats} run(s) per decoder row, "
+        f"(other jobs on the machine slow every row alike). Medians of {settings.repeats} run(s) per decoder row, "
         f"{settings.fusion_repeats} per fusion row.",
         "",
     ]
