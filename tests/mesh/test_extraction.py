@@ -81,3 +81,10 @@ def test_numpy_returning_sdf_is_accepted():
 def test_unknown_method_is_rejected():
     with pytest.raises(ValueError, match="dense"):
         extract_mesh(sphere(0.5), resolution=16, method="octree")
+
+
+def test_resolution_below_the_coarse_grid_still_meshes():
+    sphere = lambda p: p.norm(dim=-1) - 0.5  # noqa: E731
+    dense, _ = extract_mesh(sphere, 16, method="dense")
+    small, _ = extract_mesh(sphere, 16, method="coarse_to_fine", coarse_resolution=32)
+    assert np.allclose(np.sort(small.vertices, 0), np.sort(dense.vertices, 0))

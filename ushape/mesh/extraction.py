@@ -114,7 +114,9 @@ def extract_mesh(
     if method == "dense":
         grid, evaluations = sdf_grid(sdf_fn, resolution, chunk), resolution**3
     elif method == "coarse_to_fine":
-        grid, evaluations = coarse_to_fine_grid(sdf_fn, resolution, coarse_resolution, safety, chunk)
+        # A small grid is its own coarse level (a preview at 16^3 needs no refinement).
+        coarse = min(coarse_resolution, resolution)
+        grid, evaluations = coarse_to_fine_grid(sdf_fn, resolution, coarse, safety, chunk)
     else:
         raise ValueError(f"unknown extraction method {method!r}: use 'dense' or 'coarse_to_fine'")
     return marching_cubes(grid), ExtractionStats(resolution, evaluations, method)

@@ -1,0 +1,39 @@
+"""`python train.py -m ...` end to end on a tiny world: what a user types, in a subprocess."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+TINY = [
+    "experiment=quickstart",
+    "data.n_train=3", "data.n_val=1", "data.n_test=1", "data.samples_per_shape=4000", "data.n_views=2",
+    "data.image_size=32", "data.mesh_resolution=64", "data.num_workers=0",
+    "stage1.max_epochs=2", "stage1.module.val_every_n_epochs=2", "stage1.module.val_mesh_resolution=16",
+    "stage1.data.shapes_per_batch=3", "stage1.data.samples_per_shape=256", "stage1.data.val_num_shapes=1",
+    "stage1.latent_optim.iterations=3", "stage1.latent_optim.samples_per_iter=256",
+    "stage2.max_epochs=1", "stage2.data.image_size=32", "stage2.data.batch_size=4",
+    "stage2.module.log_meshes=false", "stage2.module.val_samples=20", "encoder.backbone.pretrained=false",
+    "trainer.enable_progress_bar=false", "+trainer.enable_model_summary=false",
+]
+
+
+def test_sweep_over_losses_trains_one_decoder_and_two_encoders(tmp_path):
+    env = {**os.environ, "USHAPE_ROOT": str(tmp_path)}
+    result = subprocess.run(
+        [sys.executable, "train.py", "-m", "loss=es,l2", *TINY],
+        cwd=REPO, env=env, capture_output=True, text=True, timeout=600,
+    )
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    runs = sorted((tmp_path / "outputs" / "multirun").glob("*/*/*/run.json"))
+    assert len(runs) == 2, runs
+    summaries = [json.loads(p.read_text()) for p in runs]
+    assert {s["stage"] for s in summaries} == {"encoder"}
+    assert len({s["decoder_dir"] for s in summaries}) == 1  # one stage-1 decoder serves the sweep
+    assert len(list((tmp_path / "outputs" / "decoders").glob("*/DONE"))) == 1
+    for s in summaries:
+        assert Path(s["encoder_checkpoint"]).exists()
+    assert "Reusing the stage-1 decoder" in result.stdout + result.stderr
