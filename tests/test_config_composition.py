@@ -29,9 +29,13 @@ def _targets(node, path=""):
             yield from _targets(value, f"{path}[{i}]")
 
 
-def _compose(overrides: list[str], hydra_cfg: bool = False) -> DictConfig:
+# Groups only eval.py's config uses; every other group belongs to train.py's.
+EVAL_ONLY = {"protocol"}
+
+
+def _compose(overrides: list[str], hydra_cfg: bool = False, config: str = "train") -> DictConfig:
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return compose("train", overrides=overrides, return_hydra_config=hydra_cfg)
+        return compose(config, overrides=overrides, return_hydra_config=hydra_cfg)
 
 
 ALL = [(g, o) for g in GROUPS for o in _options(g)]
@@ -45,7 +49,11 @@ def test_every_group_has_options():
 
 @pytest.mark.parametrize("group,option", ALL, ids=[f"{g}={o}" for g, o in ALL])
 def test_option_composes_and_targets_import(group, option, tmp_path):
-    cfg = _compose([f"{group}={option}", f"paths.root_dir={tmp_path}", f"paths.output_dir={tmp_path}/run"])
+    config = "eval" if group in EVAL_ONLY else "train"
+    paths = [f"paths.root_dir={tmp_path}", f"paths.output_dir={tmp_path}/run"]
+    if config == "eval":
+        paths.append(f"out_dir={tmp_path}/eval")
+    cfg = _compose([f"{group}={option}", *paths], config=config)
     OmegaConf.resolve(cfg)
     for where, target in _targets(cfg):
         assert get_object(target) is not None, f"{group}={option}: {where}._target_={target} does not import"
@@ -55,6 +63,11 @@ def test_unknown_option_lists_the_valid_ones():
     with pytest.raises(Exception) as err:
         _compose(["category=sofas"])
     assert "chairs" in str(err.value) and "tables" in str(err.value)
+
+
+def test_eval_config_composes_with_sweepable_fusion_and_crop():
+    cfg = _compose(["fusion=bayesian_k", "fusion.k=4", "crop.min_scale=0.1"], config="eval")
+    assert cfg.fusion.k == 4 and cfg.crop.min_scale == 0.1
 
 
 def test_slurm_launcher_composes():
