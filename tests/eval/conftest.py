@@ -16,6 +16,7 @@ import trimesh
 from PIL import Image
 
 from ushape.data.layout import WorldIndex
+from ushape.decoder import analytic
 from ushape.decoder.artifacts import CodeTable, codes_file, save_codes
 from ushape.evaluation.protocols import EncoderSpec
 from ushape.evaluation.reconstruct import Reconstructor
@@ -30,17 +31,14 @@ LATENT = 3
 
 
 def ellipsoid_sdf(xyz, a):
-    """A signed distance-like field of the ellipsoid (a, B, B): exact sign, distance scaled by the short axis."""
-    scale = torch.stack(torch.broadcast_tensors(a, torch.full_like(a, B), torch.full_like(a, B)), -1)
-    return ((xyz / scale).norm(dim=-1) - 1) * torch.minimum(a, torch.full_like(a, B))
+    return analytic.ellipsoid_sdf(xyz, a, B)
 
 
-class SphereDecoder(torch.nn.Module):
-    """sdf(x, z) of the ellipsoid with a = 0.5 + 0.3 tanh z_0, broadcasting like the DeepSDF decoder."""
+SPHERE_DECODER = {"_target_": "ushape.decoder.analytic.EllipsoidDecoder", "latent_size": LATENT, "b": B}
 
-    def forward(self, xyz, z):
-        a = 0.5 + 0.3 * torch.tanh(z[..., 0])
-        return ellipsoid_sdf(xyz, a.expand(xyz.shape[:-1]) if a.dim() < xyz.dim() - 1 else a)
+
+def SphereDecoder():  # noqa: N802  (reads as the class it builds)
+    return analytic.EllipsoidDecoder(latent_size=LATENT, b=B)
 
 
 def code_for_radius(radius):

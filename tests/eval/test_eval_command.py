@@ -11,7 +11,7 @@ from ushape.decoder.artifacts import CodeTable, codes_file, save_codes, save_dec
 from ushape.evaluation.command import configured_setting, protocols_for, run_eval
 from ushape.evaluation.runner import PROTOCOLS
 
-from conftest import RADII, code_for_radius
+from conftest import RADII, SPHERE_DECODER, code_for_radius
 
 CONF = str(__import__("pathlib").Path(__file__).resolve().parents[2] / "conf")
 
@@ -35,7 +35,7 @@ def _fit_run(world, tmp_path):
     from ushape.encoder.fit import fit_encoder
 
     decoder_dir = tmp_path / "decoder"
-    save_decoder(decoder_dir / "decoder.pt", torch.nn.Module(), {"_target_": "conftest.SphereDecoder"})
+    save_decoder(decoder_dir / "decoder.pt", torch.nn.Module(), SPHERE_DECODER)
     table = CodeTable(list(RADII), torch.tensor([[code_for_radius(r), 0.0, 0.0] for r in RADII.values()]))
     for split in ("train", "val", "test"):
         save_codes(decoder_dir / codes_file(split), table)
