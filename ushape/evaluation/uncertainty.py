@@ -18,8 +18,8 @@ import math
 import torch
 from torch import Tensor
 
+from ushape.encoder.latent_metrics import latent_scores
 from ushape.encoder.losses import energy_score, gaussian_nll
-from ushape.evaluation.calibration import calibration_curve, calibration_error
 from ushape.evaluation.scores import energy_score_1d, gaussian_nll_1d
 from ushape.propagation import propagate, propagate_mc
 
@@ -41,13 +41,18 @@ def latent_energy_score(mu: Tensor, var: Tensor, target: Tensor, n_samples: int 
 
 
 def latent_report(mu: Tensor, var: Tensor, target: Tensor, n_samples: int = 1000, n_levels: int = 20) -> dict:
-    """ES, NLL, L2 and calibration error of latent Gaussians (mu, var [N, D]) against the codes [N, D]."""
-    p, freq = calibration_curve((mu - target).abs(), var.sqrt(), n_levels)
+    """ES, NLL (with its constant), L2 and calibration error of latent Gaussians (mu, var [N, D]) against codes [N, D].
+
+    The same scores stage-2 validation logs (`latent_scores`), so a table and TensorBoard agree;
+    only the NLL gains the 0.5 D log(2 pi) constant the tables state.
+    """
+    generator = torch.Generator().manual_seed(0)
+    scores = latent_scores(mu, var.log(), target, n_samples=n_samples, n_levels=n_levels, generator=generator)
     return {
-        "es": float(latent_energy_score(mu, var, target, n_samples)),
-        "nll": float(latent_nll(mu, var, target)),
-        "l2": float((mu - target).norm(dim=-1).mean()),
-        "calibration_error": calibration_error(p, freq),
+        "es": float(scores["latent_es"]),
+        "nll": float(scores["latent_nll"]) + 0.5 * mu.shape[-1] * math.log(2 * math.pi),
+        "l2": float(scores["latent_l2"]),
+        "calibration_error": float(scores["calibration_error"]),
     }
 
 
