@@ -13,7 +13,7 @@ from ushape.decoder.fit import fit_decoder
 from ushape.decoder.losses import clamped_l1
 from ushape.decoder.query import code_sdf_fn
 
-from conftest import FAST_TRAINER, SPLITS
+from sphere_world import FAST_TRAINER, SPLITS
 
 
 def test_codes_start_at_deepsdf_scale(tiny_decoder_config):

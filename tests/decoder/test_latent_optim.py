@@ -9,7 +9,7 @@ from ushape.decoder.latent_optim import optimise_codes
 from ushape.decoder.query import code_sdf_fn
 from ushape.mesh.extraction import extract_mesh
 
-from conftest import sphere_samples
+from sphere_world import sphere_samples
 
 
 def test_recovers_held_out_spheres_from_sample_lists(fitted_sphere_folder):

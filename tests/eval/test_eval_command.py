@@ -11,7 +11,7 @@ from ushape.decoder.artifacts import CodeTable, codes_file, save_codes, save_dec
 from ushape.evaluation.command import configured_setting, protocols_for, run_eval
 from ushape.evaluation.runner import PROTOCOLS
 
-from conftest import RADII, SPHERE_DECODER, code_for_radius
+from eval_world import RADII, SPHERE_DECODER, code_for_radius
 
 CONF = str(__import__("pathlib").Path(__file__).resolve().parents[2] / "conf")
 

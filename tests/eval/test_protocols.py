@@ -11,7 +11,7 @@ from ushape.evaluation import protocols as P
 from ushape.evaluation.runner import evaluate_all, evaluate_encoder
 from ushape.evaluation.views import ViewKey, corrupted_view, encode_views, view_seed
 
-from conftest import FakePredictor, RADII, make_run, tiny_settings
+from eval_world import FakePredictor, RADII, make_run, tiny_settings
 
 
 def _keys(n_shapes, n_views):

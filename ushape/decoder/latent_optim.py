@@ -8,18 +8,16 @@ of per-shape losses, so each code gets the gradient it would get alone.
 
 from __future__ import annotations
 
-from contextlib import contextmanager
-from typing import Iterator, Sequence
+from typing import Sequence
 
 import torch
 from torch import Tensor, nn
 
 from ushape.data.sdf_dataset import SDFSamplesDataset
 from ushape.decoder.losses import code_prior
-from ushape.decoder.query import decoder_autocast
+from ushape.decoder.query import decoder_autocast, frozen
 
 SampleSource = Sequence[tuple[Tensor, Tensor]] | SDFSamplesDataset
-
 
 def optimise_codes(
     decoder: nn.Module,
@@ -46,7 +44,7 @@ def optimise_codes(
     codes = (torch.randn(num_shapes, latent_size, generator=generator) * init_std).to(device).requires_grad_(True)
     optimiser = torch.optim.Adam([codes], lr=lr)
     n_pos = samples_per_iter - samples_per_iter // 2
-    with _frozen(decoder):
+    with frozen(decoder):
         for step in range(iterations):
             if step == lr_drop_at:
                 for group in optimiser.param_groups:
@@ -64,22 +62,6 @@ def optimise_codes(
             optimiser.step()
     return codes.detach().cpu()
 
-
-@contextmanager
-def _frozen(decoder: nn.Module) -> Iterator[None]:
-    """Eval mode (no dropout) and no parameter gradients, restored on exit."""
-    was_training = decoder.training
-    flags = [p.requires_grad for p in decoder.parameters()]
-    decoder.eval()
-    decoder.requires_grad_(False)
-    try:
-        yield
-    finally:
-        for p, flag in zip(decoder.parameters(), flags):
-            p.requires_grad_(flag)
-        decoder.train(was_training)
-
-
 def _padded_by_sign(source: SampleSource) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Per-shape samples split by sign, zero-padded: (pos [S, P, 4], counts [S], neg [S, Q, 4], counts [S])."""
     if isinstance(source, SDFSamplesDataset):
@@ -93,7 +75,6 @@ def _padded_by_sign(source: SampleSource) -> tuple[Tensor, Tensor, Tensor, Tenso
     counts = [torch.tensor([len(t) for t in side]) for side in zip(*pairs)]
     return pos, counts[0], neg, counts[1]
 
-
 def _split_by_sign(xyz: Tensor, sdf: Tensor, index: int) -> tuple[Tensor, Tensor]:
     """(rows with sdf >= 0, rows with sdf < 0), rows (x, y, z, sdf) [N, 4]."""
     xyz, sdf = torch.as_tensor(xyz, dtype=torch.float32), torch.as_tensor(sdf, dtype=torch.float32).reshape(-1)
@@ -104,7 +85,6 @@ def _split_by_sign(xyz: Tensor, sdf: Tensor, index: int) -> tuple[Tensor, Tensor
     if len(pos) == 0 or len(neg) == 0:
         raise ValueError(f"shape {index}: needs samples both outside (sdf >= 0) and inside (sdf < 0) the surface")
     return pos, neg
-
 
 def _draw(padded: Tensor, counts: Tensor, k: int, generator: torch.Generator) -> Tensor:
     """k rows per shape drawn with replacement from its first counts[s] rows. [S, P, 4] -> [S, k, 4]"""

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
-from typing import Callable
+from contextlib import contextmanager
+from typing import Callable, Iterator
 
 import torch
 from torch import Tensor, nn
+from torch.nn.utils import parametrize
 
 
 def decoder_autocast(device: torch.device | str, enabled: bool) -> torch.autocast:
@@ -27,3 +29,29 @@ def code_sdf_fn(decoder: nn.Module, code: Tensor, bf16: bool = False) -> Callabl
         return values.float().to(points.device)
 
     return sdf
+
+
+@contextmanager
+def frozen(decoder: nn.Module) -> Iterator[nn.Module]:
+    """Eval mode, parameters not requiring grad, weight-norm weights computed once; restored on exit.
+
+    Without this, dropout would add noise to every SDF sample, a backward pass for the
+    latent Jacobian would also build weight gradients, and weight normalisation would
+    recompute every layer's weight on every chunk.
+    """
+    if not isinstance(decoder, nn.Module):
+        yield decoder
+        return
+    modes = [(module, module.training) for module in decoder.modules()]
+    grads = [(param, param.requires_grad) for param in decoder.parameters()]
+    decoder.eval()
+    for param, _ in grads:
+        param.requires_grad_(False)
+    try:
+        with parametrize.cached():
+            yield decoder
+    finally:
+        for module, training in modes:
+            module.training = training
+        for param, requires_grad in grads:
+            param.requires_grad_(requires_grad)

@@ -2,46 +2,18 @@
 
 from __future__ import annotations
 
-from contextlib import contextmanager, nullcontext
-from typing import Callable, ContextManager, Iterator
+from typing import Callable, ContextManager
 
 import torch
 from torch import Tensor, nn
-from torch.nn.utils import parametrize
+
+from ushape.decoder.query import decoder_autocast, frozen  # noqa: F401  (frozen: re-exported)
 
 Decoder = Callable[[Tensor, Tensor], Tensor]  # (xyz [..., 3], z [..., D]) -> sdf [...]
 
-
-@contextmanager
-def frozen(decoder: Decoder) -> Iterator[Decoder]:
-    """Eval mode, parameters not requiring grad, weight-norm weights computed once; restored on exit.
-
-    Without this, dropout would add noise to every SDF sample, a backward pass for the
-    latent Jacobian would also build weight gradients, and weight normalisation would
-    recompute every layer's weight on every chunk.
-    """
-    if not isinstance(decoder, nn.Module):
-        yield decoder
-        return
-    modes = [(module, module.training) for module in decoder.modules()]
-    grads = [(param, param.requires_grad) for param in decoder.parameters()]
-    decoder.eval()
-    for param, _ in grads:
-        param.requires_grad_(False)
-    try:
-        with parametrize.cached():
-            yield decoder
-    finally:
-        for module, training in modes:
-            module.training = training
-        for param, requires_grad in grads:
-            param.requires_grad_(requires_grad)
-
-
 def autocast(bf16: bool, device: torch.device) -> ContextManager:
-    """bf16 autocast on `device` when asked (3-4x faster matmuls on AMX CPUs), else nothing."""
-    return torch.autocast(device.type, dtype=torch.bfloat16) if bf16 else nullcontext()
-
+    """bf16 autocast on `device` when asked, else nothing (see `decoder_autocast`)."""
+    return decoder_autocast(device, bf16)
 
 def check_latent_gaussian(mu: Tensor, var: Tensor) -> None:
     """Raise a ValueError unless mu, var are one diagonal Gaussian over the latent code: [D] each, var >= 0."""
@@ -54,17 +26,14 @@ def check_latent_gaussian(mu: Tensor, var: Tensor) -> None:
     if (var < 0).any():
         raise ValueError("var must be >= 0 (a variance, not a log-variance or a standard deviation)")
 
-
 def check_points(points: Tensor) -> None:
     """Raise a ValueError unless points is [P, 3]."""
     if points.ndim != 2 or points.shape[-1] != 3:
         raise ValueError(f"points must have shape [P, 3], got {tuple(points.shape)}")
 
-
 def check_chunk(chunk: int) -> None:
     if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
         raise ValueError(f"chunk (points per decoder pass) must be a positive integer, got {chunk!r}")
-
 
 def decode_points(
     decoder: Decoder,
@@ -84,7 +53,6 @@ def decode_points(
             block = points[start : start + chunk]
             out[start : start + block.shape[0]] = decoder(block, z)
     return out
-
 
 def output_dtype(points: Tensor, bf16: bool) -> torch.dtype:
     """SDFs come back in the points' dtype; bf16 runs come back in float32 for the statistics."""

@@ -1,0 +1,144 @@
+"""A world of ellipsoids, an analytic decoder and a fake encoder: the protocols end to end in seconds.
+
+Shape i is an ellipsoid with semi-axes (a_i, 0.5, 0.5) (not a sphere: the Pix3D metrics normalise
+scale away); code z decodes to a = 0.5 + 0.3 tanh(z_0). The fake encoder reads a off the image (the
+fraction of object pixels of a disc of radius a/2), so cropping an image really does corrupt its
+code, and it reports a larger variance for a smaller visible object.
+"""
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from PIL import Image
+
+from ushape.data.layout import WorldIndex
+from ushape.decoder import analytic
+from ushape.decoder.artifacts import CodeTable, codes_file, save_codes
+from ushape.evaluation.protocols import EncoderSpec
+from ushape.evaluation.reconstruct import Reconstructor
+from ushape.evaluation.runner import EncoderRun, Settings
+from ushape.evaluation.views import test_views
+
+RADII = {"test_0": 0.3, "test_1": 0.7}
+B = 0.5
+N_VIEWS = 8
+IMAGE = 32
+LATENT = 3
+
+
+def ellipsoid_sdf(xyz, a):
+    return analytic.ellipsoid_sdf(xyz, a, B)
+
+
+SPHERE_DECODER = {"_target_": "ushape.decoder.analytic.EllipsoidDecoder", "latent_size": LATENT, "b": B}
+
+
+def SphereDecoder():  # noqa: N802  (reads as the class it builds)
+    return analytic.EllipsoidDecoder(latent_size=LATENT, b=B)
+
+
+def code_for_radius(radius):
+    return math.atanh((radius - 0.5) / 0.3)
+
+
+class FakePredictor:
+    """Encodes an image to (mu, var) from how much of it the object covers."""
+
+    def __init__(self, checkpoint, probabilistic=True):
+        self.checkpoint, self.temperature, self.image_size = checkpoint, None, IMAGE
+        self.mask_mode, self.background_value, self.probabilistic = "gt_mask", 1.0, probabilistic
+        self.decoder = SphereDecoder()
+
+    def encode(self, images):
+        cover = (images.mean(dim=1) < 0.99).float().mean(dim=(1, 2))  # [V] fraction of object pixels
+        radius = 2 * (cover / math.pi).sqrt()  # the disc's radius is a/2 image widths
+        mu = torch.zeros(len(images), LATENT)
+        mu[:, 0] = torch.atanh(((radius - 0.5) / 0.3).clamp(-0.99, 0.99))
+        var = torch.ones(len(images), LATENT)
+        if self.probabilistic:
+            var = var * (0.05 + (0.3 - cover).clamp(min=0))[:, None]  # a cropped view covers less: less sure
+        return mu, var
+
+
+def _disc(path, radius, rng):
+    yy, xx = (np.mgrid[:IMAGE, :IMAGE] + 0.5) / IMAGE - 0.5
+    inside = np.hypot(yy, xx) < radius / 2
+    rgb = rng.integers(0, 200, (IMAGE, IMAGE, 3))
+    Image.fromarray(np.concatenate([rgb, 255 * inside[..., None]], -1).astype(np.uint8), "RGBA").save(path)
+
+
+def build_sphere_world(root):
+    rng = np.random.default_rng(0)
+    for folder in ("splits", "meshes", "sdf", "renders", "shapes"):
+        (root / folder).mkdir(parents=True, exist_ok=True)
+    (root / "config.json").write_text(json.dumps({"category": "spheres", "n_views": N_VIEWS, "image_size": IMAGE}))
+    # The same shapes in every split, so a real encoder can be fitted on this world in a test.
+    for split, ids in (("train", list(RADII)), ("val", list(RADII)), ("test", list(RADII))):
+        (root / "splits" / f"{split}.json").write_text(json.dumps(ids))
+    for shape_id, radius in RADII.items():
+        mesh = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+        mesh.apply_scale([radius, B, B])
+        mesh.export(root / "meshes" / f"{shape_id}.ply")
+        points = rng.normal(size=(600, 3))
+        points = points / np.linalg.norm(points, axis=1, keepdims=True) * (1 + rng.normal(0, 0.05, (600, 1)))
+        points = points * np.array([radius, B, B])
+        sdf = ellipsoid_sdf(torch.from_numpy(points), torch.tensor(radius, dtype=torch.float64)).numpy()
+        samples = np.concatenate([points, sdf[:, None]], 1).astype(np.float32)
+        np.savez(root / "sdf" / f"{shape_id}.npz", pos=samples[sdf > 0], neg=samples[sdf <= 0])
+        (root / "renders" / shape_id).mkdir(exist_ok=True)
+        for view in range(N_VIEWS):
+            _disc(root / "renders" / shape_id / f"{view:02d}.png", radius, rng)
+    return WorldIndex.load(root)
+
+
+@pytest.fixture(scope="session")
+def sphere_world(tmp_path_factory):
+    return build_sphere_world(tmp_path_factory.mktemp("spheres"))
+
+
+@pytest.fixture(scope="session")
+def sphere_codes(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("decoder")
+    table = CodeTable(list(RADII), torch.tensor([[code_for_radius(r), 0.0, 0.0] for r in RADII.values()]))
+    save_codes(folder / codes_file("test"), table)
+    return folder
+
+
+def tiny_settings(**overrides):
+    values = dict(group_size=4, resolution=24, n_points=128, sdf_points=200, mc_samples=4,
+                  single_view_scales=(1.0, 0.1), corrupted_scales=(0.4, 0.1), table4_k=2, calibration_levels=10)
+    return Settings(**{**values, **overrides})
+
+
+def make_run(world, codes_dir, cache_dir, name, tmp_path, settings):
+    checkpoint = tmp_path / f"{name}.ckpt"
+    checkpoint.write_bytes(name.encode())
+    labels = {"es": "Ours", "nll": "Ours-NLL", "l2": "FroDO*"}
+    predictor = FakePredictor(checkpoint, probabilistic=name != "l2")
+    spec = EncoderSpec(name, labels[name], predictor.probabilistic)
+    reconstructor = Reconstructor(predictor.decoder, "spheres", world, settings.resolution, cache_dir,
+                                  n_points=settings.n_points)
+    return EncoderRun(spec, predictor, world, reconstructor, codes_dir, test_views(world))
+
+
+@pytest.fixture(scope="session")
+def evaluated_dir(sphere_world, sphere_codes, tmp_path_factory):
+    """Every protocol for fake ES, NLL and L2 encoders on the ellipsoid world, written like eval.py does."""
+    import warnings
+
+    from ushape.evaluation.report import write_results
+    from ushape.evaluation.runner import evaluate_all
+    from ushape.fusion.strategies import BayesianKFusion
+
+    tmp = tmp_path_factory.mktemp("evaluation")
+    settings = tiny_settings(showcase_shapes=1)
+    runs = [make_run(sphere_world, sphere_codes, tmp / "cache", name, tmp, settings) for name in ("es", "nll", "l2")]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = evaluate_all(runs, settings, tmp / "cache", (BayesianKFusion(k=2), "bayesian-2", 0.4), tmp / "out")
+    write_results(result, tmp / "out")
+    return tmp / "out"
