@@ -18,7 +18,6 @@ import hashlib
 import io
 import json
 import logging
-import multiprocessing
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,9 +26,9 @@ from typing import Any, Iterable, Optional, Sequence
 import numpy as np
 import trimesh
 from PIL import Image
-from tqdm.auto import tqdm
 
 from ushape import atomic
+from ushape.data.jobs import run_jobs
 from ushape.data import integrity, shapenet, shapenet_rendering
 from ushape.data.cameras import format_metadata, parse_metadata, sample_r2n2_views
 from ushape.data.layout import SPLITS, WorldIndex
@@ -157,12 +156,7 @@ class ShapeNetWorld:
         return ModelJob(index, model_id, split, str(source), self.layout, self.synset, self.renderings_root, seed)
 
     def _run(self, jobs: list[ModelJob]) -> Iterable[tuple[str, Optional[str]]]:
-        progress = dict(total=len(jobs), desc=f"ShapeNet {self.synset}", unit="model")
-        if self.num_workers <= 0:
-            yield from tqdm(map(process_model, jobs), **progress)
-            return
-        with multiprocessing.get_context("spawn").Pool(self.num_workers) as pool:
-            yield from tqdm(pool.imap_unordered(process_model, jobs), **progress)
+        return run_jobs(process_model, jobs, self.num_workers, desc=f"ShapeNet {self.synset}", unit="model")
 
 
 def process_model(job: ModelJob) -> tuple[str, Optional[str]]:

@@ -10,7 +10,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import multiprocessing
 import time
 import warnings
 from collections import Counter
@@ -18,9 +17,9 @@ from pathlib import Path
 from typing import Any, Iterable, Optional
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from ushape import atomic
+from ushape.data.jobs import run_jobs
 from ushape.data import integrity
 from ushape.data.layout import SPLITS, WorldIndex, world_dir_name
 from ushape.data.shape_artifacts import ShapeFactory, ShapeJob, ShapeResult, build_shape
@@ -153,13 +152,7 @@ class SyntheticWorld:
         return ids
 
     def _run(self, jobs: list[ShapeJob]) -> Iterable[ShapeResult]:
-        progress = dict(total=len(jobs), desc=f"{self.config['category']} world", unit="shape")
-        if self.num_workers <= 0:
-            yield from tqdm(map(build_shape, jobs), **progress)
-            return
-        # spawn: workers start clean rather than inheriting the parent's thread pools mid-fork.
-        with multiprocessing.get_context("spawn").Pool(self.num_workers) as pool:
-            yield from tqdm(pool.imap_unordered(build_shape, jobs), **progress)
+        return run_jobs(build_shape, jobs, self.num_workers, desc=f"{self.config['category']} world", unit="shape")
 
 
 def default_shape_factory(category: str) -> ShapeFactory:
