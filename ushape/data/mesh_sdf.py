@@ -35,7 +35,7 @@ import trimesh
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from ushape.data.sampling import sample_sdf
+from ushape.data.sampling import area_weighted_surface_points, sample_sdf
 from ushape.data.shading import DEFAULT_ALBEDO
 
 UNIT_SPHERE_BUFFER = 1.03  # DeepSDF: farthest vertex at 1/1.03 leaves room for the decoder's band
@@ -158,14 +158,7 @@ class SurfaceDistance:
 
     def __init__(self, mesh: trimesh.Trimesh, n_surface_samples: int = 200_000, k: int = 4, seed: int = 0) -> None:
         check_mesh(mesh)
-        rng = np.random.default_rng(seed)
-        areas = mesh.area_faces
-        faces = rng.choice(len(areas), size=n_surface_samples, p=areas / areas.sum())
-        u, v = rng.random(n_surface_samples), rng.random(n_surface_samples)
-        flip = u + v > 1
-        u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
-        tri = mesh.triangles[faces]
-        samples = tri[:, 0] + u[:, None] * (tri[:, 1] - tri[:, 0]) + v[:, None] * (tri[:, 2] - tri[:, 0])
+        samples, faces = area_weighted_surface_points(mesh, n_surface_samples, np.random.default_rng(seed))
         # Every triangle's first vertex joins the samples, so tiny triangles are never unreachable.
         self._points = np.concatenate([samples, mesh.triangles[:, 0]])
         self._faces = np.concatenate([faces, np.arange(len(mesh.faces))])

@@ -38,7 +38,7 @@ def sample_points(mesh: trimesh.Trimesh, n_points: int, rng: np.random.Generator
     if len(mesh.faces) == 0:
         raise ValueError("cannot sample SDF points near an empty mesh (0 faces)")
     n_coarse, n_fine, n_uniform = sample_counts(n_points)
-    surface = _area_weighted_surface_points(mesh, n_coarse + n_fine, rng)
+    surface, _ = area_weighted_surface_points(mesh, n_coarse + n_fine, rng)
     std = np.repeat(np.sqrt(NEAR_SURFACE_VARIANCES), [n_coarse, n_fine])[:, None]
     near = surface + rng.normal(size=surface.shape) * std
     uniform = rng.uniform(-UNIFORM_BOUND, UNIFORM_BOUND, size=(n_uniform, 3))
@@ -85,8 +85,8 @@ def _as_sdf_fn(shape_or_sdf_fn: Union[SdfFn, object]) -> SdfFn:
     )
 
 
-def _area_weighted_surface_points(mesh: trimesh.Trimesh, n: int, rng: np.random.Generator) -> np.ndarray:
-    """Uniform points on the mesh surface [n,3] (faces chosen by area), driven by `rng`."""
+def area_weighted_surface_points(mesh: trimesh.Trimesh, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Uniform points on the mesh surface [n,3] and the face each lies on [n] (faces chosen by area)."""
     areas = mesh.area_faces
     face = rng.choice(len(areas), size=n, p=areas / areas.sum())
     # Uniform barycentric coordinates by folding the unit square onto the triangle.
@@ -94,4 +94,4 @@ def _area_weighted_surface_points(mesh: trimesh.Trimesh, n: int, rng: np.random.
     flip = u + v > 1
     u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
     tri = mesh.triangles[face]
-    return tri[:, 0] + u[:, None] * (tri[:, 1] - tri[:, 0]) + v[:, None] * (tri[:, 2] - tri[:, 0])
+    return tri[:, 0] + u[:, None] * (tri[:, 1] - tri[:, 0]) + v[:, None] * (tri[:, 2] - tri[:, 0]), face
