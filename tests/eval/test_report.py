@@ -92,3 +92,14 @@ def test_runs_are_resolved_from_folders_sweeps_or_the_newest(tmp_path):
     assert [p.name for p in resolve_runs(root=tmp_path)] == ["0_loss=es", "1_loss=nll", "10_loss=l2"]
     with pytest.raises(FileNotFoundError, match="no finished encoder run"):
         resolve_runs(root=tmp_path / "empty")
+
+
+def test_error_tracking_table_has_a_row_per_probabilistic_encoder_and_crop(evaluated_dir):
+    result = load_results(evaluated_dir)
+    table = tables.table_error_tracking(result["error_tracking"])
+    scales = sorted({r[1] for r in table.rows})
+    assert scales == sorted(set(result["settings"]["single_view_scales"]) | {1.0})
+    assert {r[0] for r in table.rows} == {"Ours", "Ours-NLL", "FroDO*"}
+    assert all(-1 <= r[4] <= 1 for r in table.rows if r[0] != "FroDO*")
+    assert all(r[4] is None for r in table.rows if r[0] == "FroDO*")  # NaN -> null in results.json
+    assert "does the predicted variance track the error" in (evaluated_dir / "tables.md").read_text()

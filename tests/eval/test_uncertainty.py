@@ -89,3 +89,31 @@ def test_clamped_propagation_has_no_spread_beyond_the_clamp():
     assert mean.tolist() == pytest.approx([0.1, 0.0]) and variance[0] == 0 and variance[1] > 0
     mean, variance = propagate_to_sdf(decoder, torch.zeros(1), torch.ones(1), points, "mc", clamp=0.1)
     assert mean[0] == pytest.approx(0.1) and variance[0] == 0
+
+
+def _encodings(errors, traces):
+    """Views of one shape whose code is 0: mean error `errors[i]` along dim 0, variance trace `traces[i]`."""
+    from ushape.evaluation.views import Encodings, ViewKey
+
+    n, d = len(errors), 4
+    mu = torch.zeros(n, d)
+    mu[:, 0] = torch.tensor(errors, dtype=torch.float32)
+    var = torch.tensor(traces, dtype=torch.float32)[:, None].expand(n, d) / d
+    return Encodings([ViewKey("s", i) for i in range(n)], mu, var.contiguous())
+
+
+def test_error_tracking_ranks_variance_against_error():
+    from ushape.decoder.artifacts import CodeTable
+    from ushape.evaluation.protocols import EncoderSpec
+    from ushape.evaluation.uncertainty_protocol import error_tracking_row
+
+    codes = CodeTable(["s"], torch.zeros(1, 4))
+    ours = EncoderSpec("es", "Ours", True)
+    tracking = error_tracking_row(ours, _encodings([0.1, 0.5, 0.2, 0.9], [1.0, 3.0, 2.0, 4.0]), codes, 0.1)
+    assert tracking["rank_corr"] == pytest.approx(1.0)
+    assert tracking["l2"] == pytest.approx((0.1 + 0.5 + 0.2 + 0.9) / 4)
+    assert tracking["var_trace"] == pytest.approx(2.5) and tracking["min_scale"] == 0.1 and tracking["n"] == 4
+    reversed_ = error_tracking_row(ours, _encodings([0.1, 0.5, 0.2, 0.9], [4.0, 2.0, 3.0, 1.0]), codes, 1.0)
+    assert reversed_["rank_corr"] == pytest.approx(-1.0)
+    frodo = error_tracking_row(EncoderSpec("l2", "FroDO*", False), _encodings([0.1, 0.5], [4.0, 4.0]), codes, 1.0)
+    assert math.isnan(frodo["rank_corr"])

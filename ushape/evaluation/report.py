@@ -42,6 +42,8 @@ def build_tables(result: dict[str, Any]) -> list[tables.Table]:
              tables.table5(summary, group)]
     if result.get("uncertainty"):
         built.append(tables.table_s1(result["uncertainty"], summary))
+    if result.get("error_tracking"):
+        built.append(tables.table_error_tracking(result["error_tracking"]))
     return [t for t in built if t.rows]
 
 

@@ -18,7 +18,8 @@ from ushape.decoder.artifacts import codes_file, load_codes
 from ushape.evaluation import protocols as P
 from ushape.evaluation.reconstruct import Reconstructor
 from ushape.evaluation.showcase import save_showcase
-from ushape.evaluation.uncertainty_protocol import curves_to_json, decoder_dir_of, latent_rows, sdf_rows
+from ushape.evaluation.uncertainty_protocol import (curves_to_json, decoder_dir_of, error_tracking_row, latent_rows,
+                                                    sdf_rows)
 from ushape.evaluation.views import encode_views, test_views
 
 log = logging.getLogger(__name__)
@@ -109,7 +110,7 @@ def load_encoder(run_dir: str | Path, settings: Settings, cache_dir: Path | None
 def evaluate_encoder(run: EncoderRun, settings: Settings, cache_dir: Path | None,
                      setting: tuple[Callable, str, float] | None = None) -> dict[str, list]:
     """Records of every protocol asked for, the uncertainty rows and curves, and the configured setting's row."""
-    out: dict[str, Any] = {"records": [], "uncertainty": [], "curves": {}, "rows": []}
+    out: dict[str, Any] = {"records": [], "uncertainty": [], "error_tracking": [], "curves": {}, "rows": []}
     encode = lambda scale: encode_views(run.predictor, run.world, run.keys, scale, settings.seed, cache_dir)  # noqa: E731
     groups = P.group_views(run.keys, settings.group_size)
     rec = run.reconstructor
@@ -134,6 +135,8 @@ def evaluate_encoder(run: EncoderRun, settings: Settings, cache_dir: Path | None
                                    settings.mc_samples, settings.sdf_clamp, settings.sdf_views,
                                    settings.calibration_levels)
         out["uncertainty"] = rows + sdf
+        scales = [1.0] + (list(settings.single_view_scales) if "corrupted" in settings.protocols else [])
+        out["error_tracking"] = [error_tracking_row(run.spec, encode(s), codes, s) for s in dict.fromkeys(scales)]
         out["curves"] = {"latent": curves_to_json(latent_curves), "sdf": curves_to_json(sdf_curves)}
     if setting is not None:
         out["rows"].append(setting_row(run, settings, groups, encode, *setting))
@@ -176,12 +179,12 @@ def evaluate_all(runs: Sequence[EncoderRun], settings: Settings, cache_dir: Path
     With showcase_dir, the first shapes' reconstructions with uncertainty are saved there (see showcase).
     """
     started = time.time()
-    result: dict[str, Any] = {"records": [], "uncertainty": [], "curves": {"latent": {}, "sdf": {}}, "rows": [],
-                              "runs": {}}
+    result: dict[str, Any] = {"records": [], "uncertainty": [], "error_tracking": [],
+                              "curves": {"latent": {}, "sdf": {}}, "rows": [], "runs": {}}
     for run in runs:
         log.info("evaluating %s on %d views of %s", run.spec.label, len(run.keys), run.world.root)
         part = evaluate_encoder(run, settings, cache_dir, setting)
-        for key in ("records", "uncertainty", "rows"):
+        for key in ("records", "uncertainty", "error_tracking", "rows"):
             result[key] += part[key]
         for space, curves in part["curves"].items():
             result["curves"][space].update(curves)

@@ -160,6 +160,19 @@ def table_s1(uncertainty: Sequence[dict], summary: Sequence[dict]) -> Table:
     return table
 
 
+def table_error_tracking(rows: Sequence[dict]) -> Table:
+    """Per encoder and crop setting: latent error, mean predicted covariance trace, and their rank correlation."""
+    table = Table("Table U: does the predicted variance track the error?",
+                  "Single test views cropped to a random area in [min scale, 1]. Rank corr: Spearman correlation over "
+                  "the views between the covariance trace and the squared latent error (> 0: the encoder is less "
+                  "sure where it is more wrong). A deterministic encoder has no variance to rank.",
+                  ["Method", "min scale", "latent L2", "mean var trace", "rank corr", "n"])
+    order = {e: i for i, (e, _) in enumerate(encoder_order(rows))}
+    for r in sorted(rows, key=lambda r: (order.get(r["encoder"], 99), -r["min_scale"])):
+        table.rows.append([r["label"], r["min_scale"], r["l2"], r["var_trace"], r["rank_corr"], r["n"]])
+    return table
+
+
 def write_tables(tables: Sequence[Table], out_dir: str | Path) -> Path:
     """Each table as <slug>.csv, and all of them in tables.md; returns the Markdown file."""
     out_dir = Path(out_dir)

@@ -18,6 +18,7 @@ from tqdm.auto import tqdm
 
 from ushape.data.layout import WorldIndex
 from ushape.decoder.artifacts import CodeTable
+from ushape.encoder.latent_metrics import spearman_correlation
 from ushape.evaluation.calibration import calibration_curve, calibration_error
 from ushape.evaluation.protocols import EncoderSpec
 from ushape.evaluation.uncertainty import EQUAL_VARIANCE, latent_report, propagate_to_sdf, sdf_region_scores
@@ -56,6 +57,17 @@ def latent_rows(spec: EncoderSpec, encodings: Encodings, codes: CodeTable, n_lev
                      "method": "-", **report})
         curves[f"{spec.label} ({variant} var)"] = calibration_curve((encodings.mu - target).abs(), var.sqrt(), n_levels)
     return rows, curves
+
+
+def error_tracking_row(spec: EncoderSpec, encodings: Encodings, codes: CodeTable, min_scale: float) -> dict:
+    """Does the predicted variance grow with the error? Spearman rank correlation, over the views, of the
+    covariance trace against the squared latent error, at one crop setting (NaN for a constant variance)."""
+    target = torch.stack([codes.lookup(k.shape_id) for k in encodings.keys])
+    squared_error = ((encodings.mu - target) ** 2).sum(-1)
+    trace = encodings.var.sum(-1)
+    rank_corr = spearman_correlation(trace, squared_error) if spec.probabilistic else torch.tensor(float("nan"))
+    return {"encoder": spec.name, "label": spec.label, "min_scale": float(min_scale), "n": len(encodings.keys),
+            "l2": float(squared_error.sqrt().mean()), "var_trace": float(trace.mean()), "rank_corr": float(rank_corr)}
 
 
 def sdf_rows(spec: EncoderSpec, encodings: Encodings, decoder, world: WorldIndex, n_points: int = 1024,
