@@ -105,6 +105,7 @@ def sphere_codes(tmp_path_factory):
     folder = tmp_path_factory.mktemp("decoder")
     table = CodeTable(list(RADII), torch.tensor([[code_for_radius(r), 0.0, 0.0] for r in RADII.values()]))
     save_codes(folder / codes_file("test"), table)
+    save_codes(folder / codes_file("train"), table)  # the same shapes in every split (see build_sphere_world)
     return folder
 
 

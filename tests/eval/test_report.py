@@ -103,3 +103,12 @@ def test_error_tracking_table_has_a_row_per_probabilistic_encoder_and_crop(evalu
     assert all(-1 <= r[4] <= 1 for r in table.rows if r[0] != "FroDO*")
     assert all(r[4] is None for r in table.rows if r[0] == "FroDO*")  # NaN -> null in results.json
     assert "does the predicted variance track the error" in (evaluated_dir / "tables.md").read_text()
+
+
+def test_table1_brackets_the_encoders_with_the_decoder_ceiling_and_the_mean_code(evaluated_dir):
+    result = load_results(evaluated_dir)
+    rows = {r[0]: r for r in tables.table1(result["summary"]).rows}
+    ceiling, mean = rows["Stage-1 codes (decoder ceiling)"], rows["Mean training code (no image)"]
+    # The analytic decoder reproduces each ellipsoid from its own code; the mean radius fits none exactly.
+    assert ceiling[2] > 0.85 and ceiling[2] > mean[2]
+    assert ceiling[5] == mean[5] == len({r["shape_id"] for r in result["records"] if r["protocol"] == "single"})

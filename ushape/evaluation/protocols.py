@@ -19,6 +19,7 @@ from typing import Callable, Iterable, Sequence
 
 from tqdm.auto import tqdm
 
+from ushape.decoder.artifacts import CodeTable
 from ushape.evaluation.views import Encodings, ViewKey
 from ushape.fusion.rules import FusedCode, fuse_average, fuse_bayesian, fuse_bayesian_k
 
@@ -84,6 +85,22 @@ def single_view_records(spec: EncoderSpec, encodings: Encodings, reconstructor, 
     for i, key in enumerate(tqdm(encodings.keys, desc=f"{spec.name} single view {min_scale:g}", leave=False)):
         scores = reconstructor.scores(encodings.mu[i], key.shape_id, emd=emd)
         records.append(_record(spec, "single", min_scale, SINGLE_VIEW, 1, key.shape_id, f"{key.view}", scores))
+    return records
+
+
+REFERENCES = {"ref_codes": "Stage-1 codes (decoder ceiling)", "ref_mean": "Mean training code (no image)"}
+
+
+def reference_records(codes: CodeTable, train_codes: CodeTable, shape_ids: Sequence[str], reconstructor) -> list[dict]:
+    """What an encoder's IoU means: each test shape reconstructed from its own stage-1 code (the best any
+    encoder can do with this decoder) and from the mean training code (what ignoring the image gives)."""
+    mean = train_codes.codes.mean(0)
+    records = []
+    for shape_id in tqdm(shape_ids, desc="reference codes", leave=False):
+        for name, code in (("ref_codes", codes.lookup(shape_id)), ("ref_mean", mean)):
+            spec = EncoderSpec(name, REFERENCES[name], probabilistic=False)
+            scores = reconstructor.scores(code, shape_id, emd=True)
+            records.append(_record(spec, "reference", 1.0, SINGLE_VIEW, 0, shape_id, "-", scores))
     return records
 
 

@@ -194,10 +194,20 @@ def evaluate_all(runs: Sequence[EncoderRun], settings: Settings, cache_dir: Path
             encodings = encode_views(run.predictor, run.world, run.keys, 1.0, settings.seed, cache_dir)
             save_showcase(run, encodings, showcase_dir, settings.group_size, settings.showcase_shapes,
                           settings.resolution, settings.mc_samples)
+    if runs and "single_view" in settings.protocols:
+        result["records"] += reference_rows(runs[0], settings)
     result["summary"] = P.summarise(result["records"])
     result["settings"] = {k: (list(v) if isinstance(v, (tuple, range)) else v) for k, v in vars(settings).items()}
     result["seconds"] = round(time.time() - started, 1)
     return result
+
+
+def reference_rows(run: EncoderRun, settings: Settings) -> list[dict]:
+    """Table 1's reference rows from the first run's decoder: the test shapes' own codes and the mean code."""
+    codes = load_codes(run.codes_dir / codes_file(settings.split))
+    train = load_codes(run.codes_dir / codes_file("train"))
+    shape_ids = list(dict.fromkeys(k.shape_id for k in run.keys))
+    return P.reference_records(codes, train, shape_ids, run.reconstructor)
 
 
 def load_results(path: str | Path) -> dict[str, Any]:

@@ -80,6 +80,9 @@ def table1(summary: Sequence[dict]) -> Table:
         cell = cells.get((encoder, "single", 1.0, SINGLE_VIEW))
         if cell is not None:
             table.rows.append([label, "Mesh", cell["iou"], cell.get("emd"), cell.get("cd"), cell["n"]])
+    for r in summary:  # the references an encoder sits between (see protocols.reference_records)
+        if r["protocol"] == "reference":
+            table.rows.append([r["label"], "Mesh", r["iou"], r.get("emd"), r.get("cd"), r["n"]])
     return table
 
 
