@@ -67,6 +67,11 @@ def test_eval_writes_tables_and_the_setting_row_for_a_real_run(sphere_world, tmp
     row = json.loads((out / "eval_row.json").read_text())[0]
     assert (row["label"], row["fusion"], row["n_views"]) == ("Ours-NLL", "bayesian-3", 4)  # 2 shapes x 2 views
     assert "Table 1" in (out / "tables.md").read_text() and "Table S1" in capsys.readouterr().out
+    cfg.out_dir = None  # the default: into the evaluated run's folder
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run_eval(cfg)
+    assert [p.parent.parent for p in run_dir.glob("eval/*/tables.md")] == [run_dir / "eval"]
     cfg.temperature = True  # asked for, but never fitted for this run
     with pytest.raises(FileNotFoundError, match="temperature.json"):
         run_eval(cfg)

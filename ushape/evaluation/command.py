@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import time
 from pathlib import Path
 
 from hydra.utils import instantiate
@@ -38,6 +39,20 @@ def configured_setting(cfg: DictConfig):
     return fuse, name, float(cfg.crop.min_scale)
 
 
+def default_out_dir(runs: list[Path]) -> Path:
+    """Where results go when out_dir is not given: a multirun job's own folder (a sweep gathers them);
+    otherwise into the evaluated run (<run>/eval/<time>), or the sweep folder its runs share."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if _multirun() or not runs:
+        return Path(HydraConfig.get().runtime.output_dir)
+    parents = {Path(r).resolve().parent for r in runs}
+    home = Path(runs[0]).resolve() if len(runs) == 1 else (parents.pop() if len(parents) == 1 else None)
+    if home is None:  # runs from different places: Hydra's own folder under outputs/eval
+        return Path(HydraConfig.get().runtime.output_dir)
+    return home / "eval" / time.strftime("%Y-%m-%d_%H-%M-%S")
+
+
 def run_eval(cfg: DictConfig) -> float | None:
     """Evaluate (or gather); returns the configured setting's mean multi-view IoU (what a sweeper maximises)."""
     if cfg.get("gather"):
@@ -50,7 +65,7 @@ def run_eval(cfg: DictConfig) -> float | None:
                            "protocols": protocols_for(cfg.protocols, _multirun())})
     given = cfg.get("runs") or cfg.get("sweep")
     runs = resolve_runs(cfg.get("runs"), cfg.get("sweep"), "." if given else cfg.paths.root_dir)
-    out_dir = Path(cfg.out_dir)
+    out_dir = Path(cfg.out_dir) if cfg.get("out_dir") else default_out_dir(runs)
     log.info("evaluating %d run(s) into %s: %s", len(runs), out_dir, ", ".join(map(str, runs)))
     result = evaluate_runs(runs, settings, Path(cfg.cache_dir) if cfg.get("cache_dir") else None,
                            setting=configured_setting(cfg), world_dir=cfg.get("world"),
