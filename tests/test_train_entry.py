@@ -17,6 +17,7 @@ TINY = [
     "stage1.latent_optim.iterations=3", "stage1.latent_optim.samples_per_iter=256",
     "stage2.max_epochs=1", "stage2.data.image_size=32", "stage2.data.batch_size=4",
     "stage2.module.log_meshes=false", "stage2.module.val_samples=20", "encoder.backbone.pretrained=false",
+    "stage2.demo_meshes.resolution=24",
     "trainer.enable_progress_bar=false", "+trainer.enable_model_summary=false",
 ]
 
@@ -36,4 +37,9 @@ def test_sweep_over_losses_trains_one_decoder_and_two_encoders(tmp_path):
     assert len(list((tmp_path / "outputs" / "decoders").glob("*/DONE"))) == 1
     for s in summaries:
         assert Path(s["encoder_checkpoint"]).exists()
+        # One val shape from its first view and from both views; a 1-epoch encoder may give no surface.
+        folders = sorted(p.name for p in Path(s["meshes"]).iterdir())
+        assert len(folders) == 2 and folders[0].endswith("_1view") and folders[1].endswith("_2views"), folders
+        for folder in Path(s["meshes"]).iterdir():
+            assert (folder / "mesh.ply").exists() or (folder / "empty_surface.txt").exists()
     assert "Reusing the stage-1 decoder" in result.stdout + result.stderr

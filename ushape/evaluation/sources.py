@@ -6,7 +6,8 @@ import json
 from pathlib import Path
 from typing import Sequence
 
-RUN_SUMMARY = "run.json"  # written by ushape.experiment.train
+from ushape.experiment.summary import RUN_SUMMARY
+
 SEARCHED = (Path("outputs") / "runs", Path("outputs") / "multirun")
 HINT = "train one first: `python train.py experiment=quickstart` (or `-m loss=es,nll,l2` for a sweep)"
 

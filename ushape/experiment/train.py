@@ -17,12 +17,12 @@ from ushape.data.layout import WorldIndex
 from ushape.decoder.fit import fit_decoder
 from ushape.encoder.fit import fit_encoder
 from ushape.experiment.decoder_store import ensure_decoder
-from ushape.experiment.summary import print_config, print_summary
+from ushape.experiment.demo_meshes import write_demo_meshes
+from ushape.experiment.summary import RUN_SUMMARY, print_config, print_summary
 
 log = logging.getLogger(__name__)
 
 STAGES = ("decoder", "encoder")
-RUN_SUMMARY = "run.json"
 
 
 def run(cfg: DictConfig) -> float | None:
@@ -42,6 +42,9 @@ def run(cfg: DictConfig) -> float | None:
     if cfg.stage == "encoder":
         checkpoint = train_encoder(cfg, world, decoder_dir, out_dir)
         summary["encoder_checkpoint"] = str(checkpoint)
+        meshes = write_demo_meshes(checkpoint, world, out_dir / "meshes", **_plain(cfg.stage2.get("demo_meshes") or {}))
+        if meshes is not None:
+            summary["meshes"] = str(meshes)
         summary["tensorboard"] = str(out_dir / "tensorboard")
         metric = _checkpoint_score(checkpoint)
     else:

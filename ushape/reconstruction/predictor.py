@@ -26,7 +26,7 @@ from omegaconf import OmegaConf
 from torch import Tensor, nn
 
 from ushape.data.augment import IMAGE_SUFFIXES, CompositeBackground, load_rgba, resize
-from ushape.experiment.train import RUN_SUMMARY
+from ushape.experiment.summary import RUN_SUMMARY
 from ushape.recalibration.temperature import apply_temperature
 
 log = logging.getLogger(__name__)
