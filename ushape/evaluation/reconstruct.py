@@ -40,8 +40,8 @@ def code_hash(decoder_tag: str, code: Tensor, resolution: int, shape_id: str) ->
 
 
 def sdf_of(decoder, code: Tensor, bf16: bool = False):
-    """points [P, 3] -> SDF [P] of one code [D], chunked, without gradients (bf16: 3-4x faster on AMX CPUs)."""
-    return lambda points: decode_points(decoder, code, points, chunk=65536, bf16=bf16)
+    """points [P, 3] -> SDF [P] of one code [D], chunked, without gradients (bf16 pays off only with AMX or a GPU)."""
+    return lambda points: decode_points(decoder, code, points, bf16=bf16)
 
 
 def decode_grid(decoder, code: Tensor, resolution: int, bf16: bool = False) -> Tensor:
@@ -52,7 +52,7 @@ def decode_grid(decoder, code: Tensor, resolution: int, bf16: bool = False) -> T
     point anyway, plus its overhead.
     """
     with frozen(decoder):
-        return sdf_grid(sdf_of(decoder, code, bf16), resolution, chunk=65536)
+        return sdf_grid(sdf_of(decoder, code, bf16), resolution)
 
 
 def grid_inside_fn(grid: Tensor) -> InsideFn:

@@ -39,7 +39,7 @@ class Settings:
     table4_k: int = 4
     resolution: int = 64
     n_points: int = 1024
-    bf16: bool = True
+    bf16: bool = False
     single_view_scales: Sequence[float] = (1.0, 0.1, 0.01)
     single_view_views: int | None = None
     corrupted_scales: Sequence[float] = (0.8, 0.4, 0.2, 0.1, 0.01)

@@ -22,9 +22,10 @@ from torch import Tensor
 
 SDFFn = Callable[[Tensor], Tensor]
 
-# Decoder calls are batched in chunks of this many points: big enough to keep the CPU's matrix
-# units busy, small enough that an 8 x 512 decoder's activations stay well under 1 GiB.
-DEFAULT_CHUNK = 2**17
+# Decoder calls are batched in chunks of this many points. Measured on the 2-core reference CPU
+# (262k points, fp32): 4096 is 1.5-2x faster than 65536 for both decoders, because a chunk's
+# activations then stay in cache; smaller chunks only add call overhead. A GPU wants bigger ones.
+DEFAULT_CHUNK = 4096
 
 
 class EmptySurfaceError(ValueError):

@@ -71,7 +71,7 @@ def mesh_inside_fn(mesh: trimesh.Trimesh) -> InsideFn:
     return lambda points: mesh.contains(np.asarray(points, dtype=np.float64))
 
 
-def sdf_inside_fn(sdf_fn: Callable[[torch.Tensor], torch.Tensor], chunk: int = 2**17) -> InsideFn:
+def sdf_inside_fn(sdf_fn: Callable[[torch.Tensor], torch.Tensor], chunk: int = 4096) -> InsideFn:
     """Inside test of an SDF callable (points [P, 3] tensor -> sdf [P]): inside where sdf < 0."""
     def inside(points: np.ndarray) -> np.ndarray:
         sdf = evaluate_sdf(sdf_fn, torch.as_tensor(np.asarray(points), dtype=torch.float32), chunk)

@@ -80,7 +80,7 @@ def decode_field(
     decoder: Decoder,
     z: Tensor,  # [D]
     resolution: int,
-    chunk: int = 8192,
+    chunk: int = 4096,
     bf16: bool = False,
 ) -> Tensor:  # [N, N, N]
     """Plain SDF grid [N, N, N] over [-1, 1]^3 for one code, no uncertainty (the cost baseline)."""
