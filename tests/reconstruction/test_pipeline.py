@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from ushape.data.cameras import camera_centre
 from ushape.fusion import BayesianKFusion
 from ushape.reconstruction.cli import build_fusion, main
 from ushape.reconstruction.export import read_glb_std, read_ply_std
@@ -65,10 +66,19 @@ def test_reconstruct_writes_every_output(tiny_run, sphere_predictor, tmp_path):
     assert np.allclose(np.linalg.norm(vertices, axis=1), 0.5, atol=0.02)  # mu = 0: the radius-0.5 sphere
     fused_var = summary["fused"]["trace_var"] / 8
     assert np.allclose(std_ply, 0.1 * (1 + vertices[:, 0]) * np.sqrt(fused_var), rtol=1e-3, atol=1e-6)
+    checked = 0
     for view in summary["views"]:
         assert view["depth"]["camera"] == "render" and view["depth"]["hit_pixels"] > 0
+        # The std grows towards +x, so a camera on the -x side sees the surer half: hidden/visible > 1.
         with np.load(view["depth"]["npz"]) as depth:
             assert depth["mean"].shape == (16, 16)
+            camera_x = camera_centre(depth["world_to_cam"])[0]
+        seen = view["visibility"]
+        assert seen["hidden_vertices"] > 0 and seen["visible_vertices"] > 0
+        if abs(camera_x) > 0.3:
+            assert (seen["std_hidden_over_visible"] > 1) == (camera_x < 0)
+            checked += 1
+    assert checked > 0
     assert set(summary["seconds"]) >= {"encode", "fuse", "mesh", "vertex_uncertainty", "depth_uncertainty"}
 
 

@@ -33,6 +33,7 @@ from ushape.reconstruction.export import DEFAULT_CMAP, coloured_mesh, write_mesh
 from ushape.reconstruction.figures import depth_figure, overview_figure
 from ushape.reconstruction.predictor import Predictor
 from ushape.reconstruction.sphere_tracing import DepthStats, depth_uncertainty, sample_codes
+from ushape.reconstruction.visibility import hidden_over_visible
 
 CANONICAL_CAMERA = {"azimuth_deg": 45.0, "elevation_deg": 27.5, "distance": 2.8, "fov_deg": R2N2_FOV_DEG}
 SUMMARY_FILE = "summary.json"
@@ -120,8 +121,16 @@ def reconstruct(
         overview_figure(images, shown, overview, float(files["std_max"]), settings.cmap, fused.kept.tolist())
     with timer("depth_uncertainty"):
         depth = depth_maps(predictor, fused, images, paths, out_dir, settings, generator)
+    with timer("visibility"):
+        seen = [view_visibility(mesh, std, path) for path in paths]
     return write_summary(out_dir, predictor, fusion, settings, paths, skipped, var, fused, mesh, std, stats,
-                         files, overview, depth, timer.seconds)
+                         files, overview, depth, seen, timer.seconds)
+
+
+def view_visibility(mesh: trimesh.Trimesh, std: np.ndarray, path: Path) -> dict | None:
+    """Hidden vs visible vertex std for a view whose camera is known (a world render); None otherwise."""
+    _, w2c, camera = view_camera(path, 64)
+    return hidden_over_visible(mesh, std, w2c) if camera == "render" else None
 
 
 def depth_maps(
@@ -154,7 +163,8 @@ def depth_maps(
 def write_summary(
     out_dir: Path, predictor: Predictor, fusion: Fusion, settings: ReconstructionSettings, paths: Sequence[Path],
     skipped: Sequence[tuple[Path, str]], var: Tensor, fused: FusedCode, mesh: trimesh.Trimesh,
-    std: np.ndarray, stats: Any, files: dict, overview: Path, depth: list[dict], seconds: dict[str, float],
+    std: np.ndarray, stats: Any, files: dict, overview: Path, depth: list[dict], seen: list[dict | None],
+    seconds: dict[str, float],
 ) -> dict[str, Any]:
     """summary.json: inputs, per-view uncertainty (trace of var), fusion's kept views, mesh, timings, paths."""
     kept = set(fused.kept.tolist())
@@ -165,7 +175,8 @@ def write_summary(
         "uncertainty": settings.uncertainty,
         "settings": asdict(settings),
         "views": [
-            {"image": str(p), "trace_var": float(var[i].sum()), "kept": i in kept, "depth": depth[i]}
+            {"image": str(p), "trace_var": float(var[i].sum()), "kept": i in kept, "depth": depth[i],
+             "visibility": seen[i]}
             for i, p in enumerate(paths)
         ],
         "skipped": [{"image": str(p), "reason": why} for p, why in skipped],
