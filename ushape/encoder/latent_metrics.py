@@ -30,6 +30,15 @@ def spearman_correlation(x: Tensor, y: Tensor) -> Tensor:
     return (rx * ry).sum() / (rx.norm() * ry.norm())
 
 
+def variance_tracks_error(var: Tensor, mu: Tensor, target: Tensor) -> Tensor:
+    """Spearman correlation, over the N predictions, of the covariance trace with the squared error.
+
+    var, mu, target [N, D] -> scalar; > 0 when the model is less sure where it is more wrong, NaN for a
+    constant variance.
+    """
+    return spearman_correlation(var.sum(-1), ((mu - target) ** 2).sum(-1))
+
+
 def latent_scores(
     mu: Tensor,  # [N, D]
     logvar: Tensor,  # [N, D]
@@ -49,6 +58,6 @@ def latent_scores(
         "latent_l2": latent_l2(mu, target),
         "latent_es": energy_score(mu, logvar, target, n_samples=n_samples, generator=generator),
         "latent_nll": gaussian_nll(mu, logvar, target),
-        "rank_corr": spearman_correlation(logvar.exp().sum(-1), ((mu - target) ** 2).sum(-1)),
+        "rank_corr": variance_tracks_error(logvar.exp(), mu, target),
         "calibration_error": torch.tensor(calibration_error(p, freq)),
     }

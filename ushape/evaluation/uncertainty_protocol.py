@@ -18,7 +18,7 @@ from tqdm.auto import tqdm
 
 from ushape.data.layout import WorldIndex
 from ushape.decoder.artifacts import CodeTable
-from ushape.encoder.latent_metrics import spearman_correlation
+from ushape.encoder.latent_metrics import latent_l2, variance_tracks_error
 from ushape.evaluation.calibration import calibration_curve, calibration_error
 from ushape.evaluation.protocols import EncoderSpec
 from ushape.evaluation.uncertainty import EQUAL_VARIANCE, latent_report, propagate_to_sdf, sdf_region_scores
@@ -47,9 +47,14 @@ def _variants(spec: EncoderSpec, var: Tensor) -> dict[str, Tensor]:
     return {"predicted": var, "equal": equal} if spec.probabilistic else {"equal": equal}
 
 
+def code_targets(encodings: Encodings, codes: CodeTable) -> Tensor:
+    """The stage-1 code of each encoded view's shape. -> [N, D]"""
+    return torch.stack([codes.lookup(k.shape_id) for k in encodings.keys])
+
+
 def latent_rows(spec: EncoderSpec, encodings: Encodings, codes: CodeTable, n_levels: int = 20) -> tuple[list, dict]:
     """Latent-space ES / NLL / L2 / calibration error per variance variant, and their calibration curves."""
-    target = torch.stack([codes.lookup(k.shape_id) for k in encodings.keys])
+    target = code_targets(encodings, codes)
     rows, curves = [], {}
     for variant, var in _variants(spec, encodings.var).items():
         report = latent_report(encodings.mu, var, target, n_levels=n_levels)
@@ -62,12 +67,11 @@ def latent_rows(spec: EncoderSpec, encodings: Encodings, codes: CodeTable, n_lev
 def error_tracking_row(spec: EncoderSpec, encodings: Encodings, codes: CodeTable, min_scale: float) -> dict:
     """Does the predicted variance grow with the error? Spearman rank correlation, over the views, of the
     covariance trace against the squared latent error, at one crop setting (NaN for a constant variance)."""
-    target = torch.stack([codes.lookup(k.shape_id) for k in encodings.keys])
-    squared_error = ((encodings.mu - target) ** 2).sum(-1)
-    trace = encodings.var.sum(-1)
-    rank_corr = spearman_correlation(trace, squared_error) if spec.probabilistic else torch.tensor(float("nan"))
+    target = code_targets(encodings, codes)
+    rank_corr = variance_tracks_error(encodings.var, encodings.mu, target) if spec.probabilistic else float("nan")
     return {"encoder": spec.name, "label": spec.label, "min_scale": float(min_scale), "n": len(encodings.keys),
-            "l2": float(squared_error.sqrt().mean()), "var_trace": float(trace.mean()), "rank_corr": float(rank_corr)}
+            "l2": float(latent_l2(encodings.mu, target)), "var_trace": float(encodings.var.sum(-1).mean()),
+            "rank_corr": float(rank_corr)}
 
 
 def sdf_rows(spec: EncoderSpec, encodings: Encodings, decoder, world: WorldIndex, n_points: int = 1024,
