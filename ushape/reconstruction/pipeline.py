@@ -119,25 +119,20 @@ def reconstruct(
         overview = out_dir / "overview.png"
         shown = coloured_mesh(mesh, std, float(files["std_max"]), settings.cmap)
         overview_figure(images, shown, overview, float(files["std_max"]), settings.cmap, fused.kept.tolist())
+    cameras = [view_camera(path, settings.depth_size) for path in paths]
     with timer("depth_uncertainty"):
-        depth = depth_maps(predictor, fused, images, paths, out_dir, settings, generator)
-    with timer("visibility"):
-        seen = [view_visibility(mesh, std, path) for path in paths]
+        depth = depth_maps(predictor, fused, images, cameras, out_dir, settings, generator)
+    with timer("visibility"):  # only where the view's camera is known: a render of the world
+        seen = [hidden_over_visible(mesh, std, w2c) if kind == "render" else None for _, w2c, kind in cameras]
     return write_summary(out_dir, predictor, fusion, settings, paths, skipped, var, fused, mesh, std, stats,
                          files, overview, depth, seen, timer.seconds)
-
-
-def view_visibility(mesh: trimesh.Trimesh, std: np.ndarray, path: Path) -> dict | None:
-    """Hidden vs visible vertex std for a view whose camera is known (a world render); None otherwise."""
-    _, w2c, camera = view_camera(path, 64)
-    return hidden_over_visible(mesh, std, w2c) if camera == "render" else None
 
 
 def depth_maps(
     predictor: Predictor,
     fused: FusedCode,
     images: Tensor,
-    paths: Sequence[Path],
+    cameras: Sequence[tuple[np.ndarray, np.ndarray, str]],  # view_camera(path, settings.depth_size) per view
     out_dir: Path,
     settings: ReconstructionSettings,
     generator: torch.Generator,
@@ -146,8 +141,7 @@ def depth_maps(
     codes = sample_codes(fused.mu, fused.var, settings.depth_codes, generator)
     size = settings.depth_size
     records = []
-    for i, path in enumerate(paths):
-        K, w2c, camera = view_camera(path, size)
+    for i, (K, w2c, camera) in enumerate(cameras):
         stats: DepthStats = depth_uncertainty(predictor.decoder, codes, K, w2c, (size, size), settings.depth_steps)
         npz, png = out_dir / f"depth_{i:02d}.npz", out_dir / f"depth_{i:02d}.png"
         atomic.save_npz(npz, mean=stats.mean.numpy(), std=stats.std.numpy(), hit_rate=stats.hit_rate.numpy(),
