@@ -15,6 +15,7 @@ import torch
 import trimesh
 from PIL import Image
 
+from ushape.data.cameras import look_at
 from ushape.data.layout import WorldIndex
 from ushape.decoder import analytic
 from ushape.decoder.artifacts import CodeTable, codes_file, save_codes
@@ -92,6 +93,9 @@ def build_sphere_world(root):
         (root / "renders" / shape_id).mkdir(exist_ok=True)
         for view in range(N_VIEWS):
             _disc(root / "renders" / shape_id / f"{view:02d}.png", radius, rng)
+        cameras = [look_at(360 * v / N_VIEWS, 20, 3.0, 40, IMAGE) for v in range(N_VIEWS)]
+        np.savez(root / "renders" / shape_id / "views.npz", K=np.stack([c[0] for c in cameras]),
+                 world_to_cam=np.stack([c[1] for c in cameras]))
     return WorldIndex.load(root)
 
 
@@ -111,7 +115,8 @@ def sphere_codes(tmp_path_factory):
 
 def tiny_settings(**overrides):
     values = dict(group_size=4, resolution=24, n_points=128, sdf_points=200, mc_samples=4,
-                  single_view_scales=(1.0, 0.1), corrupted_scales=(0.4, 0.1), table4_k=2, calibration_levels=10)
+                  single_view_scales=(1.0, 0.1), corrupted_scales=(0.4, 0.1), table4_k=2, calibration_levels=10,
+                  locality_points=200)
     return Settings(**{**values, **overrides})
 
 

@@ -44,6 +44,8 @@ def build_tables(result: dict[str, Any]) -> list[tables.Table]:
         built.append(tables.table_s1(result["uncertainty"], summary))
     if result.get("error_tracking"):
         built.append(tables.table_error_tracking(result["error_tracking"]))
+    if result.get("locality"):
+        built.append(tables.table_locality(result["locality"]))
     return [t for t in built if t.rows]
 
 
@@ -68,7 +70,7 @@ def write_results(result: dict[str, Any], out_dir: str | Path, tensorboard: bool
     out_dir = Path(out_dir)
     atomic.write_json(out_dir / RESULTS, _finite(result))
     atomic.write_json(out_dir / RESULT_ROW, _finite(result.get("rows", [])))
-    for name in ("records", "summary", "uncertainty"):
+    for name in ("records", "summary", "uncertainty", "locality_views"):
         if result.get(name):
             atomic.write_text(out_dir / f"{name}.csv", rows_to_csv(result[name]))
     built = build_tables(result)

@@ -16,6 +16,7 @@ from typing import Any, Callable, Sequence
 from ushape.data.layout import WorldIndex
 from ushape.decoder.artifacts import codes_file, load_codes
 from ushape.evaluation import protocols as P
+from ushape.evaluation.locality import has_cameras, locality_records, summarise_locality
 from ushape.evaluation.reconstruct import Reconstructor
 from ushape.evaluation.showcase import save_showcase
 from ushape.evaluation.uncertainty_protocol import (curves_to_json, decoder_dir_of, error_tracking_row, latent_rows,
@@ -24,7 +25,7 @@ from ushape.evaluation.views import encode_views, test_views
 
 log = logging.getLogger(__name__)
 
-PROTOCOLS = ("single_view", "multi_view", "corrupted", "uncertainty")
+PROTOCOLS = ("single_view", "multi_view", "corrupted", "uncertainty", "locality")
 LOSS_NAMES = {"energy_score": "es", "gaussian_nll": "nll", "l2_loss": "l2"}
 RESULT_ROW = "eval_row.json"
 RESULTS = "results.json"
@@ -48,6 +49,9 @@ class Settings:
     sdf_views: int | None = None
     sdf_clamp: float | None = 0.1
     calibration_levels: int = 20
+    locality_points: int = 2048
+    locality_scale: float = 0.1
+    locality_views: int | None = None
     max_shapes: int | None = None
     showcase_shapes: int = 2
     seed: int = 0
@@ -110,7 +114,8 @@ def load_encoder(run_dir: str | Path, settings: Settings, cache_dir: Path | None
 def evaluate_encoder(run: EncoderRun, settings: Settings, cache_dir: Path | None,
                      setting: tuple[Callable, str, float] | None = None) -> dict[str, list]:
     """Records of every protocol asked for, the uncertainty rows and curves, and the configured setting's row."""
-    out: dict[str, Any] = {"records": [], "uncertainty": [], "error_tracking": [], "curves": {}, "rows": []}
+    out: dict[str, Any] = {"records": [], "uncertainty": [], "error_tracking": [], "locality": [],
+                           "locality_views": [], "curves": {}, "rows": []}
     encode = lambda scale: encode_views(run.predictor, run.world, run.keys, scale, settings.seed, cache_dir)  # noqa: E731
     groups = P.group_views(run.keys, settings.group_size)
     rec = run.reconstructor
@@ -138,6 +143,15 @@ def evaluate_encoder(run: EncoderRun, settings: Settings, cache_dir: Path | None
         scales = [1.0] + (list(settings.single_view_scales) if "corrupted" in settings.protocols else [])
         out["error_tracking"] = [error_tracking_row(run.spec, encode(s), codes, s) for s in dict.fromkeys(scales)]
         out["curves"] = {"latent": curves_to_json(latent_curves), "sdf": curves_to_json(sdf_curves)}
+    if "locality" in settings.protocols and not has_cameras(run.world, [k.shape_id for k in run.keys]):
+        log.warning("Table L skipped: the test renders of %s have no cameras (views.npz), so which parts a "
+                    "view hides or crops away is unknown", run.world.root)
+    elif "locality" in settings.protocols:
+        scale = settings.locality_scale
+        out["locality_views"] = locality_records(run.spec, encode(1.0), encode(scale), run.predictor.decoder,
+                                                 run.world, scale, settings.seed, settings.locality_points,
+                                                 settings.locality_views)
+        out["locality"] = summarise_locality(out["locality_views"])
     if setting is not None:
         out["rows"].append(setting_row(run, settings, groups, encode, *setting))
     return out
@@ -179,12 +193,12 @@ def evaluate_all(runs: Sequence[EncoderRun], settings: Settings, cache_dir: Path
     With showcase_dir, the first shapes' reconstructions with uncertainty are saved there (see showcase).
     """
     started = time.time()
-    result: dict[str, Any] = {"records": [], "uncertainty": [], "error_tracking": [],
-                              "curves": {"latent": {}, "sdf": {}}, "rows": [], "runs": {}}
+    result: dict[str, Any] = {"records": [], "uncertainty": [], "error_tracking": [], "locality": [],
+                              "locality_views": [], "curves": {"latent": {}, "sdf": {}}, "rows": [], "runs": {}}
     for run in runs:
         log.info("evaluating %s on %d views of %s", run.spec.label, len(run.keys), run.world.root)
         part = evaluate_encoder(run, settings, cache_dir, setting)
-        for key in ("records", "uncertainty", "error_tracking", "rows"):
+        for key in ("records", "uncertainty", "error_tracking", "locality", "locality_views", "rows"):
             result[key] += part[key]
         for space, curves in part["curves"].items():
             result["curves"][space].update(curves)

@@ -176,6 +176,30 @@ def table_error_tracking(rows: Sequence[dict]) -> Table:
     return table
 
 
+def table_locality(rows: Sequence[dict]) -> Table:
+    """Per probabilistic encoder: does its SDF std sit on the parts a view hides or crops away (see locality)?"""
+    table = Table("Table L: where the uncertainty sits",
+                  "Linearised SDF std on ground-truth surface points of single test views, as ratios of medians "
+                  "(median over views; in brackets, the share of views above 1). Hidden/visible: occluded vs seen "
+                  "points. Away/kept: seen points the crop removes vs keeps, with the clean and with the cropped "
+                  "input; crop shift = cropped / clean (> 1: the crop moved uncertainty onto the removed part). "
+                  "Std gain: mean std cropped / clean. Fused: std after Bayesian fusion of all the shape's views / "
+                  "single view, on the hidden and on the visible points.",
+                  ["Method", "min scale", "hidden/visible", "away/kept clean", "away/kept cropped", "crop shift",
+                   "std gain", "fused hidden", "fused visible", "views (cropped)"])
+    order = {e: i for i, (e, _) in enumerate(encoder_order(rows))}
+
+    def cell(r: dict, name: str) -> str | None:
+        value, share = r.get(name), r.get(f"{name}_above_1")
+        return None if value is None else f"{value:.3f} ({share:.0%})"
+
+    for r in sorted(rows, key=lambda r: (order.get(r["encoder"], 99), -r["min_scale"])):
+        table.rows.append([r["label"], r["min_scale"], *(cell(r, n) for n in (
+            "hidden_over_visible", "away_over_kept_clean", "away_over_kept_cropped", "crop_shift", "std_gain",
+            "fused_hidden", "fused_visible")), f"{r['n_views']} ({r['n_cropped_views']})"])
+    return table
+
+
 def write_tables(tables: Sequence[Table], out_dir: str | Path) -> Path:
     """Each table as <slug>.csv, and all of them in tables.md; returns the Markdown file."""
     out_dir = Path(out_dir)
