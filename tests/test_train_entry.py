@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import torch
+
 REPO = Path(__file__).resolve().parents[1]
 
 TINY = [
@@ -23,9 +25,10 @@ TINY = [
 
 
 def test_sweep_over_losses_trains_one_decoder_and_two_encoders(tmp_path):
+    """Both encoders in the PCA latent basis: the rebased stage-1 folder is also written once and shared."""
     env = {**os.environ, "USHAPE_ROOT": str(tmp_path)}
     result = subprocess.run(
-        [sys.executable, "train.py", "-m", "loss=es,l2", *TINY],
+        [sys.executable, "train.py", "-m", "loss=es,l2", "stage2.latent_basis=pca", *TINY],
         cwd=REPO, env=env, capture_output=True, text=True, timeout=600,
     )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
@@ -35,8 +38,13 @@ def test_sweep_over_losses_trains_one_decoder_and_two_encoders(tmp_path):
     assert {s["stage"] for s in summaries} == {"encoder"}
     assert len({s["decoder_dir"] for s in summaries}) == 1  # one stage-1 decoder serves the sweep
     assert len(list((tmp_path / "outputs" / "decoders").glob("*/DONE"))) == 1
+    assert len({s["latent_basis_dir"] for s in summaries}) == 1
+    basis_dir = Path(summaries[0]["latent_basis_dir"])
+    assert basis_dir.parent == Path(summaries[0]["decoder_dir"]) and (basis_dir / "DONE").exists()
     for s in summaries:
         assert Path(s["encoder_checkpoint"]).exists()
+        hparams = torch.load(s["encoder_checkpoint"], map_location="cpu", weights_only=False)["hyper_parameters"]
+        assert Path(hparams["decoder_path"]) == basis_dir  # evaluation follows the rotated decoder
         # One val shape from its first view and from both views; a 1-epoch encoder may give no surface.
         folders = sorted(p.name for p in Path(s["meshes"]).iterdir())
         assert len(folders) == 2 and folders[0].endswith("_1view") and folders[1].endswith("_2views"), folders

@@ -16,6 +16,7 @@ from ushape import atomic
 from ushape.data.layout import WorldIndex
 from ushape.decoder.fit import fit_decoder
 from ushape.encoder.fit import fit_encoder
+from ushape.decoder.basis import ensure_basis
 from ushape.experiment.decoder_store import ensure_decoder
 from ushape.experiment.demo_meshes import write_demo_meshes
 from ushape.experiment.summary import RUN_SUMMARY, print_config, print_summary
@@ -40,7 +41,10 @@ def run(cfg: DictConfig) -> float | None:
     summary: dict[str, Any] = {"stage": cfg.stage, "world": str(world.root), "decoder_dir": str(decoder_dir)}
     metric = None
     if cfg.stage == "encoder":
-        checkpoint = train_encoder(cfg, world, decoder_dir, out_dir)
+        latent_dir = ensure_basis(decoder_dir, cfg.stage2.get("latent_basis", "identity"))
+        if latent_dir != decoder_dir:
+            summary["latent_basis_dir"] = str(latent_dir)
+        checkpoint = train_encoder(cfg, world, latent_dir, out_dir)
         summary["encoder_checkpoint"] = str(checkpoint)
         meshes = write_demo_meshes(checkpoint, world, out_dir / "meshes", **_plain(cfg.stage2.get("demo_meshes") or {}))
         if meshes is not None:
