@@ -121,7 +121,7 @@ def locality_records(spec: EncoderSpec, clean: Encodings, cropped: Encodings, de
     """One record per test view (of a probabilistic encoder): where its uncertainty sits (module docstring)."""
     if not spec.probabilistic:
         return []
-    if [k for k in clean.keys] != [k for k in cropped.keys]:
+    if clean.keys != cropped.keys:
         raise ValueError("clean and cropped encodings must hold the same views in the same order")
     by_shape: dict[str, list[ViewKey]] = {}
     for key in clean.keys:
