@@ -49,3 +49,15 @@ def test_image_encoder_bad_input(tiny_encoder):
         encoder(torch.rand(2, 4, 32, 32))
     with pytest.raises(ValueError, match="_target_"):
         ImageEncoder(backbone={"pretrained": False})
+
+
+def test_head_started_at_a_gaussian_predicts_it_for_any_features():
+    head = GaussianHead(in_dim=16, latent_size=4)
+    mean, var = torch.tensor([0.5, -0.2, 0.0, 1.0]), torch.tensor([0.1, 0.01, 1e-3, 2.0])
+    head.start_at(mean, var)
+    mu, logvar = head(torch.randn(5, 16))
+    assert torch.allclose(mu, mean.expand(5, 4))
+    assert torch.allclose(logvar, var.log().expand(5, 4), atol=1e-4)
+    head.start_at(mean, torch.tensor([1e-30, 1.0, 1.0, 1e30]))  # beyond the clamp: kept just inside it
+    _, logvar = head(torch.randn(2, 16))
+    assert torch.isfinite(logvar).all() and (logvar > head.logvar_min).all() and (logvar < head.logvar_max).all()

@@ -96,3 +96,16 @@ def test_fit_encoder_writes_a_loadable_checkpoint(world, decoder_dir, tmp_path, 
     restored = EncoderModule.load_from_checkpoint(ckpt).eval()
     assert restored.hparams.loss["_target_"] == loss["_target_"]
     assert restored(torch.rand(2, 3, 16, 16))[0].shape == (2, 8)
+
+
+def test_prior_head_init_starts_at_the_training_codes_gaussian(decoder_dir, tiny_encoder):
+    from ushape.decoder.artifacts import codes_file, load_codes
+
+    codes = load_codes(decoder_dir / codes_file("train")).codes
+    model = EncoderModule(str(decoder_dir), tiny_encoder, ES, head_init="prior").eval()
+    with torch.no_grad():
+        mu, logvar = model(torch.rand(3, 3, 24, 24))
+    assert torch.allclose(mu, codes.mean(0).expand_as(mu), atol=1e-6)
+    assert torch.allclose(logvar.exp(), codes.var(0).expand_as(logvar), rtol=1e-3)
+    with pytest.raises(ValueError, match="head_init"):
+        EncoderModule(str(decoder_dir), tiny_encoder, ES, head_init="zeros")

@@ -39,6 +39,17 @@ class GaussianHead(nn.Module):
         nn.init.zeros_(self.logvar.weight)
         nn.init.constant_(self.logvar.bias, (self.logvar_min + self.logvar_max) / 2)
 
+    def start_at(self, mean: Tensor, var: Tensor) -> None:
+        """Start from the Gaussian N(mean [D], diag(var [D])) whatever the image: zero the output weights,
+        set the biases (the log-variance through the inverse of the soft clamp, kept inside its bounds)."""
+        centre, half = (self.logvar_max + self.logvar_min) / 2, (self.logvar_max - self.logvar_min) / 2
+        target = var.clamp_min(1e-12).log().clamp(self.logvar_min + 0.01 * half, self.logvar_max - 0.01 * half)
+        with torch.no_grad():
+            self.mean.weight.zero_()
+            self.mean.bias.copy_(mean)
+            self.logvar.weight.zero_()
+            self.logvar.bias.copy_(centre + half * torch.atanh((target - centre) / half))
+
     def forward(self, features: Tensor) -> tuple[Tensor, Tensor]:
         logvar = soft_clamp(self.logvar(features), self.logvar_min, self.logvar_max)
         return self.mean(features), logvar
