@@ -59,7 +59,9 @@ def test_view_record_measures_a_shift_onto_the_cropped_away_part():
     clean = np.where(parts.hidden, 3.0, 1.0)  # the hidden third three times as uncertain
     cropped = np.where(parts.away, 2.0, clean)  # the crop doubles the std on what it removed, nothing else
     fused = clean * np.where(parts.hidden, 0.25, 0.5)  # other views shrink the hidden part's std more
-    record = view_record(parts, clean, cropped, fused)
+    err_clean = np.ones(n)
+    err_crop = np.where(parts.away, 4.0, 1.0)  # ... and the prediction got 4x worse there
+    record = view_record(parts, (err_clean, clean), (err_crop, cropped), fused)
     assert record["n_visible"] == 8 and record["n_away"] == 4
     assert record["hidden_over_visible"] == pytest.approx(3.0)
     assert record["away_over_kept_clean"] == pytest.approx(1.0)
@@ -67,20 +69,24 @@ def test_view_record_measures_a_shift_onto_the_cropped_away_part():
     assert record["crop_shift"] == pytest.approx(2.0)
     assert record["std_gain"] == pytest.approx(cropped.mean() / clean.mean())
     assert record["fused_hidden"] == pytest.approx(0.25) and record["fused_visible"] == pytest.approx(0.5)
+    assert record["error_crop_shift"] == pytest.approx(4.0) and record["error_hidden_over_visible"] == pytest.approx(1.0)
+    assert record["error_gain"] == pytest.approx(err_crop.mean())
 
 
 def test_view_record_without_a_crop_has_no_crop_ratios():
     n = 6
     parts = ViewParts(hidden=np.arange(n) >= 3, kept=np.arange(n) < 3, away=np.zeros(n, bool))
-    record = view_record(parts, np.ones(n), np.ones(n), np.ones(n))
-    assert record["away_over_kept_clean"] is None and record["crop_shift"] is None
+    ones = (np.ones(n), np.ones(n))
+    record = view_record(parts, ones, ones, np.ones(n))
+    assert record["away_over_kept_clean"] is None and record["crop_shift"] is None and record["error_crop_shift"] is None
     assert record["hidden_over_visible"] == pytest.approx(1.0)
 
 
 def _record(encoder, shift, n_away, hidden=1.0):
     return {"encoder": encoder, "label": encoder.upper(), "min_scale": 0.1, "n_visible": 100, "n_away": n_away,
             "hidden_over_visible": hidden, "away_over_kept_clean": 1.0, "away_over_kept_cropped": shift,
-            "crop_shift": shift, "std_gain": 1.0, "fused_hidden": 0.3, "fused_visible": 0.3}
+            "crop_shift": shift, "error_crop_shift": 1.0, "error_hidden_over_visible": 1.0, "std_gain": 1.0,
+            "error_gain": 1.0, "fused_hidden": 0.3, "fused_visible": 0.3}
 
 
 def test_summary_takes_medians_and_counts_only_views_the_crop_really_cut():

@@ -14,6 +14,8 @@ clean image and once for the cropped one, and compared as ratios of medians:
                           more with the code than a seat) divides out; > 1: cropping moved uncertainty onto
                           the removed part
   std_gain                mean std with the cropped input / with the clean one (> 1: less sure overall)
+  error_...               the same ratios of the error |f(x, mu)| at the points (0 on a perfect surface):
+                          where the prediction really is worse, which a calibrated std should follow
   fused_hidden/visible    median std after Bayesian fusion of all the shape's views / single view, on the
                           view's hidden and visible points (fusion should shrink the hidden part's std more)
 Ground-truth points rather than the reconstruction's vertices keep the point sets the same for both
@@ -92,24 +94,39 @@ def split_points(
     return ViewParts(hidden=~visible, kept=visible & inside, away=visible & ~inside)
 
 
-def point_std(decoder, mu: Tensor, var: Tensor, points: np.ndarray) -> np.ndarray:
-    """Linearised SDF std [P] at points for the latent Gaussian (mu [D], var [D])."""
+def point_stats(decoder, mu: Tensor, var: Tensor, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """At ground-truth surface points [P, 3]: the error |f(x, mu)| [P] and the linearised SDF std [P]."""
     xyz = torch.as_tensor(points, dtype=torch.float32)
-    _, variance = propagate(decoder, mu.float(), var.float(), xyz, "linearised")
-    return variance.clamp_min(0).sqrt().numpy()
+    mean, variance = propagate(decoder, mu.float(), var.float(), xyz, "linearised")
+    return mean.abs().numpy(), variance.clamp_min(0).sqrt().numpy()
 
 
-def view_record(parts: ViewParts, std_clean: np.ndarray, std_crop: np.ndarray, std_fused: np.ndarray) -> dict:
-    """The ratios of the module docstring for one view (None where a point set is empty)."""
-    away_clean = median_ratio(std_clean, parts.away, parts.kept)
-    away_crop = median_ratio(std_crop, parts.away, parts.kept)
+def _shift(values_clean: np.ndarray, values_crop: np.ndarray, parts: ViewParts) -> tuple:
+    """(away/kept with the clean input, away/kept with the cropped input, their quotient); None where undefined."""
+    clean = median_ratio(values_clean, parts.away, parts.kept)
+    crop = median_ratio(values_crop, parts.away, parts.kept)
+    return clean, crop, None if clean is None or crop is None else crop / clean
+
+
+def view_record(parts: ViewParts, clean: tuple[np.ndarray, np.ndarray], crop: tuple[np.ndarray, np.ndarray],
+                std_fused: np.ndarray) -> dict:
+    """The ratios of the module docstring for one view (None where a point set is empty).
+
+    clean and crop are (error [P], std [P]) from `point_stats`. The same ratios of the error say where
+    the prediction really is worse: the std ratios should follow them.
+    """
+    (err_clean, std_clean), (err_crop, std_crop) = clean, crop
+    away_clean, away_crop, shift = _shift(std_clean, std_crop, parts)
+    _, _, error_shift = _shift(err_clean, err_crop, parts)
     visible = ~parts.hidden
     return {
         "n_visible": int(visible.sum()), "n_away": int(parts.away.sum()),
         "hidden_over_visible": median_ratio(std_clean, parts.hidden, visible),
-        "away_over_kept_clean": away_clean, "away_over_kept_cropped": away_crop,
-        "crop_shift": None if away_clean is None or away_crop is None else away_crop / away_clean,
+        "error_hidden_over_visible": median_ratio(err_clean, parts.hidden, visible),
+        "away_over_kept_clean": away_clean, "away_over_kept_cropped": away_crop, "crop_shift": shift,
+        "error_crop_shift": error_shift,
         "std_gain": float(std_crop.mean() / std_clean.mean()) if std_clean.mean() > 0 else None,
+        "error_gain": float(err_crop.mean() / err_clean.mean()) if err_clean.mean() > 0 else None,
         "fused_hidden": median_ratio(std_fused, parts.hidden, parts.hidden, std_clean),
         "fused_visible": median_ratio(std_fused, visible, visible, std_clean),
     }
@@ -132,17 +149,17 @@ def locality_records(spec: EncoderSpec, clean: Encodings, cropped: Encodings, de
         mesh, points = surface_points(world, shape_id, n_points, seed)
         Ks, w2cs = render_cameras(world, shape_id)
         fused = fuse_bayesian(*clean.select(keys))
-        std_fused = point_std(decoder, fused.mu, fused.var, points)
+        _, std_fused = point_stats(decoder, fused.mu, fused.var, points)
         for key in keys[:views_per_shape]:
             box = crop_box(size, size, min_scale, CROP_RATIO, torch.Generator().manual_seed(
                 view_seed(seed, key.shape_id, key.view)))
             parts = split_points(mesh, points, Ks[key.view], w2cs[key.view], box)
             (mu_c, var_c), (mu_x, var_x) = clean.select([key]), cropped.select([key])
-            std_clean = point_std(decoder, mu_c[0], var_c[0], points)
-            std_crop = point_std(decoder, mu_x[0], var_x[0], points)
+            clean_stats = point_stats(decoder, mu_c[0], var_c[0], points)
+            crop_stats = point_stats(decoder, mu_x[0], var_x[0], points)
             records.append({"encoder": spec.name, "label": spec.label, "min_scale": float(min_scale),
                             "shape_id": shape_id, "view": key.view,
-                            **view_record(parts, std_clean, std_crop, std_fused)})
+                            **view_record(parts, clean_stats, crop_stats, std_fused)})
     return records
 
 
@@ -159,9 +176,10 @@ def summarise_locality(records: Sequence[dict], min_away: float = 0.05) -> list[
         cropped = [r for r in group if r["n_visible"] and r["n_away"] >= min_away * r["n_visible"]]
         row = {"encoder": encoder, "label": group[0]["label"], "min_scale": scale, "n_views": len(group),
                "n_cropped_views": len(cropped)}
-        for name, pool in (("hidden_over_visible", group), ("away_over_kept_clean", cropped),
-                           ("away_over_kept_cropped", cropped), ("crop_shift", cropped), ("std_gain", group),
-                           ("fused_hidden", group), ("fused_visible", group)):
+        for name, pool in (("hidden_over_visible", group), ("error_hidden_over_visible", group),
+                           ("away_over_kept_clean", cropped), ("away_over_kept_cropped", cropped),
+                           ("crop_shift", cropped), ("error_crop_shift", cropped), ("std_gain", group),
+                           ("error_gain", group), ("fused_hidden", group), ("fused_visible", group)):
             values = np.array([r[name] for r in pool if r[name] is not None], dtype=np.float64)
             row[name] = float(np.median(values)) if len(values) else None
             row[f"{name}_above_1"] = float(np.mean(values > 1)) if len(values) else None

@@ -183,10 +183,12 @@ def table_locality(rows: Sequence[dict]) -> Table:
                   "(median over views; in brackets, the share of views above 1). Hidden/visible: occluded vs seen "
                   "points. Away/kept: seen points the crop removes vs keeps, with the clean and with the cropped "
                   "input; crop shift = cropped / clean (> 1: the crop moved uncertainty onto the removed part). "
-                  "Std gain: mean std cropped / clean. Fused: std after Bayesian fusion of all the shape's views / "
-                  "single view, on the hidden and on the visible points.",
-                  ["Method", "min scale", "hidden/visible", "away/kept clean", "away/kept cropped", "crop shift",
-                   "std gain", "fused hidden", "fused visible", "views (cropped)"])
+                  "Std gain: mean std cropped / clean. Error columns: the same ratios of the error |SDF| at the "
+                  "points, where the prediction really is worse (a calibrated std follows them). Fused: std after "
+                  "Bayesian fusion of all the shape's views / single view, on the hidden and on the visible points.",
+                  ["Method", "min scale", "hidden/visible", "error hidden/visible", "away/kept clean",
+                   "away/kept cropped", "crop shift", "error crop shift", "std gain", "error gain", "fused hidden",
+                   "fused visible", "views (cropped)"])
     order = {e: i for i, (e, _) in enumerate(encoder_order(rows))}
 
     def cell(r: dict, name: str) -> str | None:
@@ -195,8 +197,9 @@ def table_locality(rows: Sequence[dict]) -> Table:
 
     for r in sorted(rows, key=lambda r: (order.get(r["encoder"], 99), -r["min_scale"])):
         table.rows.append([r["label"], r["min_scale"], *(cell(r, n) for n in (
-            "hidden_over_visible", "away_over_kept_clean", "away_over_kept_cropped", "crop_shift", "std_gain",
-            "fused_hidden", "fused_visible")), f"{r['n_views']} ({r['n_cropped_views']})"])
+            "hidden_over_visible", "error_hidden_over_visible", "away_over_kept_clean", "away_over_kept_cropped",
+            "crop_shift", "error_crop_shift", "std_gain", "error_gain", "fused_hidden", "fused_visible")),
+            f"{r['n_views']} ({r['n_cropped_views']})"])
     return table
 
 
