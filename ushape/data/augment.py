@@ -23,6 +23,7 @@ from torch import Tensor
 
 MASK_MODES = ("gt_mask", "none")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp")
+CROP_RATIO = (3 / 4, 4 / 3)  # aspect range (w/h) of random crops, torchvision's RandomResizedCrop default
 
 
 def load_rgba(path: str | Path) -> Tensor:
@@ -73,7 +74,7 @@ def random_crop(
     image: Tensor,  # [C, H, W]
     min_scale: float,
     generator: torch.Generator | None = None,
-    ratio: Sequence[float] = (3 / 4, 4 / 3),
+    ratio: Sequence[float] = CROP_RATIO,
 ) -> Tensor:
     """A random crop covering an area fraction in [min_scale, 1] of the image (not resized). -> [C, h, w]."""
     top, left, h, w = crop_box(image.shape[-2], image.shape[-1], min_scale, ratio, generator)
@@ -90,7 +91,7 @@ def resize(image: Tensor, size: int) -> Tensor:
 class RandomResizedCrop:
     """`random_crop` with area in [min_scale, 1], then resize to size x size."""
 
-    def __init__(self, size: int, min_scale: float = 0.5, ratio: Sequence[float] = (3 / 4, 4 / 3)) -> None:
+    def __init__(self, size: int, min_scale: float = 0.5, ratio: Sequence[float] = CROP_RATIO) -> None:
         self.size, self.min_scale, self.ratio = size, min_scale, tuple(ratio)
 
     def __call__(self, image: Tensor, generator: torch.Generator | None = None) -> Tensor:

@@ -31,10 +31,11 @@ from typing import Sequence
 import numpy as np
 import torch
 import trimesh
+from PIL import Image
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from ushape.data.augment import crop_box
+from ushape.data.augment import CROP_RATIO, crop_box
 from ushape.data.cameras import camera_centre, project
 from ushape.data.layout import WorldIndex
 from ushape.evaluation.protocols import EncoderSpec
@@ -42,9 +43,6 @@ from ushape.evaluation.views import Encodings, ViewKey, view_seed
 from ushape.fusion.rules import fuse_bayesian
 from ushape.mesh.visibility import median_ratio, visible_points
 from ushape.propagation import propagate
-
-CROP_RATIO = (3 / 4, 4 / 3)  # RandomResizedCrop's aspect range, as `views.corrupted_view` crops
-
 
 @dataclass(frozen=True)
 class ViewParts:
@@ -143,7 +141,6 @@ def locality_records(spec: EncoderSpec, clean: Encodings, cropped: Encodings, de
     by_shape: dict[str, list[ViewKey]] = {}
     for key in clean.keys:
         by_shape.setdefault(key.shape_id, []).append(key)
-    size = world.image_size
     records = []
     for shape_id, keys in tqdm(by_shape.items(), desc=f"{spec.name} locality", leave=False):
         mesh, points = surface_points(world, shape_id, n_points, seed)
@@ -151,7 +148,9 @@ def locality_records(spec: EncoderSpec, clean: Encodings, cropped: Encodings, de
         fused = fuse_bayesian(*clean.select(keys))
         _, std_fused = point_stats(decoder, fused.mu, fused.var, points)
         for key in keys[:views_per_shape]:
-            box = crop_box(size, size, min_scale, CROP_RATIO, torch.Generator().manual_seed(
+            with Image.open(world.image_path(key.shape_id, key.view)) as image:  # reads the header only
+                width, height = image.size
+            box = crop_box(height, width, min_scale, CROP_RATIO, torch.Generator().manual_seed(
                 view_seed(seed, key.shape_id, key.view)))
             parts = split_points(mesh, points, Ks[key.view], w2cs[key.view], box)
             (mu_c, var_c), (mu_x, var_x) = clean.select([key]), cropped.select([key])
