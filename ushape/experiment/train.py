@@ -14,9 +14,9 @@ from omegaconf import DictConfig, OmegaConf
 
 from ushape import atomic
 from ushape.data.layout import WorldIndex
+from ushape.decoder.basis import ensure_basis
 from ushape.decoder.fit import fit_decoder
 from ushape.encoder.fit import fit_encoder
-from ushape.decoder.basis import ensure_basis
 from ushape.experiment.decoder_store import ensure_decoder
 from ushape.experiment.demo_meshes import write_demo_meshes
 from ushape.experiment.summary import RUN_SUMMARY, print_config, print_summary
