@@ -10,7 +10,7 @@ import torch
 import trimesh
 from scipy.spatial import cKDTree
 
-from ushape.mesh.extraction import evaluate_sdf
+from ushape.mesh.extraction import DEFAULT_CHUNK, evaluate_sdf
 
 # points [P, 3] float -> bool [P], True inside the shape.
 InsideFn = Callable[[np.ndarray], np.ndarray]
@@ -71,7 +71,7 @@ def mesh_inside_fn(mesh: trimesh.Trimesh) -> InsideFn:
     return lambda points: mesh.contains(np.asarray(points, dtype=np.float64))
 
 
-def sdf_inside_fn(sdf_fn: Callable[[torch.Tensor], torch.Tensor], chunk: int = 4096) -> InsideFn:
+def sdf_inside_fn(sdf_fn: Callable[[torch.Tensor], torch.Tensor], chunk: int = DEFAULT_CHUNK) -> InsideFn:
     """Inside test of an SDF callable (points [P, 3] tensor -> sdf [P]): inside where sdf < 0."""
     def inside(points: np.ndarray) -> np.ndarray:
         sdf = evaluate_sdf(sdf_fn, torch.as_tensor(np.asarray(points), dtype=torch.float32), chunk)

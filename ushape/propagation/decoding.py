@@ -8,6 +8,7 @@ import torch
 from torch import Tensor, nn
 
 from ushape.decoder.query import decoder_autocast, frozen  # noqa: F401  (frozen: re-exported)
+from ushape.mesh.extraction import DEFAULT_CHUNK
 
 Decoder = Callable[[Tensor, Tensor], Tensor]  # (xyz [..., 3], z [..., D]) -> sdf [...]
 
@@ -39,7 +40,7 @@ def decode_points(
     decoder: Decoder,
     z: Tensor,  # [D]
     points: Tensor,  # [P, 3]
-    chunk: int = 4096,  # fastest on the reference CPU, see mesh.extraction.DEFAULT_CHUNK
+    chunk: int = DEFAULT_CHUNK,
     bf16: bool = False,
 ) -> Tensor:  # [P]
     """SDF f(x, z) at every point for one latent code, in chunks of `chunk` points, without gradients."""

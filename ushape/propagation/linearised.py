@@ -5,6 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from ushape.mesh.extraction import DEFAULT_CHUNK
 from ushape.propagation.decoding import (
     Decoder,
     output_dtype,
@@ -41,7 +42,7 @@ def propagate_linearised(
     mu: Tensor,  # [D]
     var: Tensor,  # [D]
     points: Tensor,  # [P, 3]
-    chunk: int = 4096,
+    chunk: int = DEFAULT_CHUNK,
     bf16: bool = False,
 ) -> tuple[Tensor, Tensor]:
     """SDF mean f(x, mu) [P] and first-order variance sum_d (ds/dz_d)^2 var_d [P] at points.

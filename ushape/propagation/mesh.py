@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ushape.mesh.extraction import grid_points as mesh_grid_points
+from ushape.mesh.extraction import DEFAULT_CHUNK, grid_points as mesh_grid_points
 from ushape.propagation.decoding import Decoder, decode_points
 from ushape.propagation.linearised import propagate_linearised
 from ushape.propagation.monte_carlo import propagate_mc
@@ -80,7 +80,7 @@ def decode_field(
     decoder: Decoder,
     z: Tensor,  # [D]
     resolution: int,
-    chunk: int = 4096,
+    chunk: int = DEFAULT_CHUNK,
     bf16: bool = False,
 ) -> Tensor:  # [N, N, N]
     """Plain SDF grid [N, N, N] over [-1, 1]^3 for one code, no uncertainty (the cost baseline)."""
