@@ -28,6 +28,8 @@ log = logging.getLogger(__name__)
 PROTOCOLS = ("single_view", "multi_view", "corrupted", "uncertainty", "locality")
 LOSS_NAMES = {"energy_score": "es", "gaussian_nll": "nll", "l2_loss": "l2"}
 RESULT_ROW = "eval_row.json"
+# The row lists every encoder contributes to an evaluation's result (concatenated over encoders).
+ROW_KEYS = ("records", "uncertainty", "error_tracking", "locality", "locality_views", "rows")
 RESULTS = "results.json"
 
 
@@ -114,8 +116,7 @@ def load_encoder(run_dir: str | Path, settings: Settings, cache_dir: Path | None
 def evaluate_encoder(run: EncoderRun, settings: Settings, cache_dir: Path | None,
                      setting: tuple[Callable, str, float] | None = None) -> dict[str, list]:
     """Records of every protocol asked for, the uncertainty rows and curves, and the configured setting's row."""
-    out: dict[str, Any] = {"records": [], "uncertainty": [], "error_tracking": [], "locality": [],
-                           "locality_views": [], "curves": {}, "rows": []}
+    out: dict[str, Any] = {**{key: [] for key in ROW_KEYS}, "curves": {}}
     encode = lambda scale: encode_views(run.predictor, run.world, run.keys, scale, settings.seed, cache_dir)  # noqa: E731
     groups = P.group_views(run.keys, settings.group_size)
     rec = run.reconstructor
@@ -193,12 +194,11 @@ def evaluate_all(runs: Sequence[EncoderRun], settings: Settings, cache_dir: Path
     With showcase_dir, the first shapes' reconstructions with uncertainty are saved there (see showcase).
     """
     started = time.time()
-    result: dict[str, Any] = {"records": [], "uncertainty": [], "error_tracking": [], "locality": [],
-                              "locality_views": [], "curves": {"latent": {}, "sdf": {}}, "rows": [], "runs": {}}
+    result: dict[str, Any] = {**{key: [] for key in ROW_KEYS}, "curves": {"latent": {}, "sdf": {}}, "runs": {}}
     for run in runs:
         log.info("evaluating %s on %d views of %s", run.spec.label, len(run.keys), run.world.root)
         part = evaluate_encoder(run, settings, cache_dir, setting)
-        for key in ("records", "uncertainty", "error_tracking", "locality", "locality_views", "rows"):
+        for key in ROW_KEYS:
             result[key] += part[key]
         for space, curves in part["curves"].items():
             result["curves"][space].update(curves)
