@@ -163,6 +163,12 @@ def table_s1(uncertainty: Sequence[dict], summary: Sequence[dict]) -> Table:
     return table
 
 
+def by_encoder_then_scale(rows: Sequence[dict]) -> list[dict]:
+    """Rows in the tables' encoder order, then from the mildest crop (largest min scale) down."""
+    order = {e: i for i, (e, _) in enumerate(encoder_order(rows))}
+    return sorted(rows, key=lambda r: (order.get(r["encoder"], 99), -r["min_scale"]))
+
+
 def table_error_tracking(rows: Sequence[dict]) -> Table:
     """Per encoder and crop setting: latent error, mean predicted covariance trace, and their rank correlation."""
     table = Table("Table U: does the predicted variance track the error?",
@@ -170,8 +176,7 @@ def table_error_tracking(rows: Sequence[dict]) -> Table:
                   "the views between the covariance trace and the squared latent error (> 0: the encoder is less "
                   "sure where it is more wrong). A deterministic encoder has no variance to rank.",
                   ["Method", "min scale", "latent L2", "mean var trace", "rank corr", "n"])
-    order = {e: i for i, (e, _) in enumerate(encoder_order(rows))}
-    for r in sorted(rows, key=lambda r: (order.get(r["encoder"], 99), -r["min_scale"])):
+    for r in by_encoder_then_scale(rows):
         table.rows.append([r["label"], r["min_scale"], r["l2"], r["var_trace"], r["rank_corr"], r["n"]])
     return table
 
@@ -189,13 +194,12 @@ def table_locality(rows: Sequence[dict]) -> Table:
                   ["Method", "min scale", "hidden/visible", "error hidden/visible", "away/kept clean",
                    "away/kept cropped", "crop shift", "error crop shift", "std gain", "error gain", "fused hidden",
                    "fused visible", "views (cropped)"])
-    order = {e: i for i, (e, _) in enumerate(encoder_order(rows))}
 
     def cell(r: dict, name: str) -> str | None:
         value, share = r.get(name), r.get(f"{name}_above_1")
         return None if value is None else f"{value:.3f} ({share:.0%})"
 
-    for r in sorted(rows, key=lambda r: (order.get(r["encoder"], 99), -r["min_scale"])):
+    for r in by_encoder_then_scale(rows):
         table.rows.append([r["label"], r["min_scale"], *(cell(r, n) for n in (
             "hidden_over_visible", "error_hidden_over_visible", "away_over_kept_clean", "away_over_kept_cropped",
             "crop_shift", "error_crop_shift", "std_gain", "error_gain", "fused_hidden", "fused_visible")),
