@@ -36,16 +36,35 @@ def test_origin_projects_to_image_centre_and_pose_is_right():
     assert np.allclose(R @ R.T, np.eye(3)) and np.linalg.det(R) == pytest.approx(1.0)
 
 
-def test_azimuth_and_opencv_axes():
+def test_azimuth_turns_as_r2n2s_and_opencv_axes():
     _, w2c = look_at(0.0, 0.0, 2.0, 50.0, 64)
     assert np.allclose(camera_centre(w2c), [2.0, 0.0, 0.0])
-    _, w2c = look_at(90.0, 0.0, 2.0, 50.0, 64)
-    assert np.allclose(camera_centre(w2c), [0.0, 0.0, -2.0])
+    # R2N2's rig turns by -azimuth: in ShapeNet v1's axes the camera moves from +x towards +z.
     K, w2c = look_at(90.0, 0.0, 2.0, 50.0, 64)
-    # Camera on -z looking at +z with y up: world +y is image up (smaller v), world -x is image right.
-    uv, _ = project(np.array([[0.0, 0.5, 0.0], [-0.5, 0.0, 0.0]]), K, w2c)
+    assert np.allclose(camera_centre(w2c), [0.0, 0.0, 2.0])
+    # Camera on +z looking at -z with y up: world +y is image up (smaller v), world +x is image right.
+    uv, _ = project(np.array([[0.0, 0.5, 0.0], [0.5, 0.0, 0.0]]), K, w2c)
     assert uv[0, 1] < 32 and uv[0, 0] == pytest.approx(32)
     assert uv[1, 0] > 32 and uv[1, 1] == pytest.approx(32)
+
+
+def test_v2_frame_is_v1_turned_about_y():
+    # (x, y, z)_v2 = (z, y, -x)_v1: the v1 front (+x) is v2's -z, v1's +z is v2's +x.
+    for az, v1_centre in ((0.0, [2.0, 0.0, 0.0]), (90.0, [0.0, 0.0, 2.0]), (30.0, None)):
+        _, w2c_v1 = look_at(az, 20.0, 2.0, 50.0, 64)
+        _, w2c_v2 = look_at(az, 20.0, 2.0, 50.0, 64, frame="v2")
+        c1, c2 = camera_centre(w2c_v1), camera_centre(w2c_v2)
+        assert np.allclose(c2, [c1[2], c1[1], -c1[0]])
+        if v1_centre is not None:
+            assert np.allclose(camera_centre(look_at(az, 0.0, 2.0, 50.0, 64)[1]), v1_centre)
+    # A point seen by the v1 camera lands on the same pixel when both are expressed in v2's axes.
+    point_v1 = np.array([[0.1, 0.3, -0.2]])
+    point_v2 = point_v1[:, [2, 1, 0]] * [1.0, 1.0, -1.0]
+    K, w2c_v1 = look_at(57.0, 26.0, 1.5, 49.13, 137)
+    _, w2c_v2 = look_at(57.0, 26.0, 1.5, 49.13, 137, frame="v2")
+    assert np.allclose(project(point_v1, K, w2c_v1)[0], project(point_v2, K, w2c_v2)[0])
+    with pytest.raises(ValueError, match="frame must be one of"):
+        look_at(0.0, 0.0, 2.0, 50.0, 64, frame="v3")
 
 
 def test_inplane_rotation_turns_the_image():

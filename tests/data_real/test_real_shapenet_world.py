@@ -51,7 +51,8 @@ def test_split_file_with_missing_model_and_empty_train(shapenet_tree, tmp_path):
 
 
 def write_r2n2_tree(shapenet_root, render_root, model_id, rows, size=137):
-    """A fake ShapeNetRendering entry rendered through R2N2's protocol in R2N2's own frame."""
+    """A fake ShapeNetRendering entry rendered through ushape's own cameras (a round trip only: the
+    real renders in test_real_shapenet_rendering.py check the convention itself)."""
     mesh = load_mesh(shapenet_root / CHAIRS / model_id / "model.obj")
     centre, scale = r2n2_frame(mesh)
     Ks, world_to_cams = metadata_to_cameras(rows, size, r2n2_centre=centre, r2n2_scale=scale)

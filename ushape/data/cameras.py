@@ -8,9 +8,15 @@ The camera looks at the object's centre with world up = +y. `rendering_metadata.
 holds one row per view: "az el inplane dist_ratio fov".
 
 Conventions used throughout ushape:
-- World frame: the shape's normalised frame, y up. Azimuth 0 puts the camera on +x and
-  grows towards -z (counter-clockwise seen from above), which is Blender's z-up azimuth
-  after its OBJ importer maps y-up (x, y, z) to z-up (x, -z, y).
+- World frame: the shape's normalised frame, y up. In ShapeNetCore v1's axes (the frame R2N2
+  rendered in, and the one ushape's own shapes use) a view at distance d sits at
+  d (cos el cos az, sin el, +cos el sin az) from the object's centre: R2N2's Blender script
+  turns its camera rig by -azimuth about Blender's up axis, so the azimuth grows from +x
+  towards +z (clockwise seen from above). Checked against R2N2's real renders of a chair
+  (tests/data_real/test_real_shapenet_rendering.py: silhouette IoU >= 0.95 on every view).
+- ShapeNetCore v2 turned every model 90 degrees about y relative to v1 (v1 models face +x,
+  v2 models face -z): (x, y, z)_v2 = (z, y, -x)_v1. `frame="v2"` expresses the same camera in
+  a v2 model's axes (`FRAME_FROM_V1`), so R2N2's rows frame a v2 mesh as they framed its v1 twin.
 - Camera frame: OpenCV, x right, y down, z forward. `world_to_cam` [4,4] maps homogeneous
   world points to camera coordinates; depth is the camera z coordinate.
 - Pixels: u to the right, v down; pixel (row i, col j) covers [j, j+1) x [i, i+1), so its
@@ -40,6 +46,11 @@ AZIMUTH_RANGE = (0.0, 360.0)
 ELEVATION_RANGE = (25.0, 30.0)
 DISTANCE_RATIO_RANGE = (0.65, 0.95)
 WORLD_UP = np.array([0.0, 1.0, 0.0])
+# p_frame = M @ p_v1 for a point (or camera offset) given in ShapeNetCore v1's axes.
+FRAME_FROM_V1 = {
+    "v1": np.eye(3),
+    "v2": np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]]),
+}
 
 ImageSize = Union[int, Sequence[int]]
 
@@ -64,10 +75,13 @@ def intrinsics(fov_deg: float, image_size: ImageSize) -> np.ndarray:
     return np.array([[f, 0.0, w / 2.0], [0.0, f, h / 2.0], [0.0, 0.0, 1.0]])
 
 
-def orbit_position(azimuth_deg: float, elevation_deg: float, distance: float) -> np.ndarray:
-    """Camera centre [3] on a sphere of radius `distance` around the origin (y-up world)."""
+def orbit_position(azimuth_deg: float, elevation_deg: float, distance: float, frame: str = "v1") -> np.ndarray:
+    """Camera centre [3] of an R2N2 view on a sphere of radius `distance` about the origin, in `frame`'s axes."""
+    if frame not in FRAME_FROM_V1:
+        raise ValueError(f"frame must be one of {sorted(FRAME_FROM_V1)} (ShapeNetCore's axes), got {frame!r}")
     az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
-    return distance * np.array([math.cos(el) * math.cos(az), math.sin(el), -math.cos(el) * math.sin(az)])
+    v1 = distance * np.array([math.cos(el) * math.cos(az), math.sin(el), math.cos(el) * math.sin(az)])
+    return FRAME_FROM_V1[frame] @ v1
 
 
 def look_at_extrinsics(eye: np.ndarray, target: np.ndarray, inplane_deg: float = 0.0) -> np.ndarray:
@@ -98,12 +112,13 @@ def look_at(
     *,
     inplane_deg: float = 0.0,
     target: Sequence[float] = (0.0, 0.0, 0.0),
+    frame: str = "v1",
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(K [3,3], world_to_cam [4,4]) of an orbiting camera looking at `target`."""
+    """(K [3,3], world_to_cam [4,4]) of an orbiting camera looking at `target` (azimuth as R2N2's, in `frame`)."""
     if distance <= 0:
         raise ValueError(f"camera distance must be positive, got {distance}")
     target = np.asarray(target, float)
-    eye = target + orbit_position(azimuth_deg, elevation_deg, distance)
+    eye = target + orbit_position(azimuth_deg, elevation_deg, distance, frame)
     return intrinsics(fov_deg, image_size), look_at_extrinsics(eye, target, inplane_deg)
 
 
@@ -127,10 +142,12 @@ def metadata_to_cameras(
     r2n2_scale: float = 1.0,
     fov_deg: float | None = R2N2_FOV_DEG,
     max_distance: float = R2N2_MAX_DISTANCE,
+    frame: str = "v1",
 ) -> tuple[np.ndarray, np.ndarray]:
     """(K [V,3,3], world_to_cam [V,4,4]) in our frame from R2N2 metadata rows [V,5].
 
-    fov_deg=None takes each row's fifth column as the field of view.
+    fov_deg=None takes each row's fifth column as the field of view. `frame` names the axes of the
+    mesh the cameras look at: "v1" (R2N2's own, and ushape's shapes) or "v2" (ShapeNetCore.v2).
     """
     rows = np.atleast_2d(np.asarray(rows, dtype=np.float64))
     if rows.shape[1] != 5:
@@ -141,7 +158,7 @@ def metadata_to_cameras(
     for az, el, inplane, ratio, row_fov in rows:
         K, w2c = look_at(
             az, el, ratio * max_distance / r2n2_scale, row_fov if fov_deg is None else fov_deg,
-            image_size, inplane_deg=inplane, target=r2n2_centre,
+            image_size, inplane_deg=inplane, target=r2n2_centre, frame=frame,
         )
         Ks.append(K)
         extrinsics.append(w2c)

@@ -38,7 +38,7 @@ from ushape.data.shape_artifacts import artifact_problems, r2n2_frame
 
 log = logging.getLogger(__name__)
 
-PREPROCESS_VERSION = 1
+PREPROCESS_VERSION = 2  # 2: R2N2 cameras in the layout's axes (v1 or v2), azimuth as R2N2's; alpha >= 128 masks
 SKIPPED_FILE = "skipped.json"
 SDF_STREAM, VIEWS_STREAM = 1, 2
 
@@ -200,18 +200,18 @@ def write_model_views(job: ModelJob, mesh: trimesh.Trimesh) -> None:
     centre, scale = r2n2_frame(mesh)
     # R2N2's files store 25 in the fov column, which is not the lens it rendered with; ours store
     # the true one. Either way the protocol's lens is right (see ushape.data.cameras).
-    Ks, world_to_cams = shapenet_rendering.model_cameras(parse_metadata(text), mesh, size)
+    Ks, world_to_cams = shapenet_rendering.model_cameras(parse_metadata(text), mesh, size, job.layout)
     ours = render_views(mesh, Ks, world_to_cams, size)
     extra = {}
     if rgba is None:
         rgba, masks = ours["rgba"], ours["mask"]
     else:
-        masks = rgba[..., 3] > 0
+        masks = shapenet_rendering.alpha_mask(rgba)
         iou = shapenet_rendering.render_agreement(masks, ours["mask"])
-        if iou < 0.5:
-            log.warning("%s: R2N2 images overlap our renders through their cameras by IoU %.2f only; the "
-                        "model's frame may differ from ShapeNet v1's (see ushape.data.shapenet_rendering)",
-                        job.model_id, iou)
+        if iou < shapenet_rendering.AGREEMENT_WARNING:
+            log.warning("%s: R2N2 images overlap our renders through their cameras by IoU %.2f only (real "
+                        "ShapeNet chairs: > 0.99); this %s model's frame may differ from the one R2N2 rendered "
+                        "(see ushape.data.shapenet_rendering)", job.model_id, iou, job.layout)
         extra["r2n2_mask_iou"] = np.float32(iou)
     for view in range(n_views):
         buffer = io.BytesIO()

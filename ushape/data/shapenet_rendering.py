@@ -6,11 +6,16 @@
 Cameras follow `ushape.data.cameras` (R2N2's Blender protocol). What is assumed about frames:
 R2N2 rendered ShapeNetCore v1's OBJ after scaling it to a unit bounding-box diagonal about
 its box centre. Centring and uniform scaling commute with our own normalisation, so the
-box centre and diagonal of *our normalised mesh* (`r2n2_frame`) place the R2N2 cameras
-correctly whichever ShapeNet version the mesh came from, provided v1 and v2 share their
-axes (y up, the same front). ShapeNet notes v1 had some left-right flipped conversions that
-v2 fixed; `render_agreement` (mask IoU between an R2N2 image and our render through its
-camera) is recorded per shape so such models can be found and dropped.
+box centre and diagonal of *our normalised mesh* (`r2n2_frame`) place the R2N2 cameras.
+v1 and v2 do NOT share their axes: v2 turned every model 90 degrees about y (v1 faces +x,
+v2 faces -z), so the cameras are built in the axes of the layout the mesh came from
+(`frame="v1"` or `"v2"`); the box centre and diagonal are the same in both.
+Object masks are the renders' alpha at >= 128 (`alpha_mask`): alpha > 0 would also count the
+anti-aliased rim, about one pixel wider than the object all round, which costs thin chairs
+~0.09 IoU. `render_agreement` (mask IoU between an R2N2 image and our render through its
+camera; 0.996 mean, 0.991 worst view on the shared real chair) is recorded per shape so that
+models whose v1 and v2 versions differ can be found and dropped; below AGREEMENT_WARNING a
+warning names the model.
 """
 
 from __future__ import annotations
@@ -27,6 +32,8 @@ from ushape.data.shape_artifacts import r2n2_frame
 RENDERING_DIR = "rendering"
 METADATA_FILE = "rendering_metadata.txt"
 R2N2_IMAGE_SIZE = 137
+ALPHA_THRESHOLD = 128   # of 255: the object's pixels, without the anti-aliased rim
+AGREEMENT_WARNING = 0.9  # mean silhouette IoU under which a model's renders and mesh disagree
 EXPECTED_LAYOUT = (
     "<root>/<synset>/<model_id>/rendering/{00..23}.png and rendering/rendering_metadata.txt "
     "(ShapeNetRendering.tgz from 3D-R2N2, unpacked)"
@@ -72,10 +79,19 @@ def load_rgba(path: str | Path, image_size: int) -> np.ndarray:
         return np.asarray(image, dtype=np.uint8).copy()
 
 
-def model_cameras(rows: np.ndarray, mesh: trimesh.Trimesh, image_size: int) -> tuple[np.ndarray, np.ndarray]:
-    """(K [V,3,3], world_to_cam [V,4,4]) in the normalised mesh's frame from R2N2 rows [V,5]."""
+def alpha_mask(rgba: np.ndarray) -> np.ndarray:
+    """Object masks bool [..., H, W] of RGBA uint8 renders [..., H, W, 4]."""
+    return rgba[..., 3] >= ALPHA_THRESHOLD
+
+
+def model_cameras(rows: np.ndarray, mesh: trimesh.Trimesh, image_size: int,
+                  layout: str = "v1") -> tuple[np.ndarray, np.ndarray]:
+    """(K [V,3,3], world_to_cam [V,4,4]) in the normalised mesh's frame from R2N2 rows [V,5].
+
+    `layout` is the ShapeNetCore version ("v1" or "v2") whose axes the mesh is in.
+    """
     centre, scale = r2n2_frame(mesh)
-    return metadata_to_cameras(rows, image_size, r2n2_centre=centre, r2n2_scale=scale)
+    return metadata_to_cameras(rows, image_size, r2n2_centre=centre, r2n2_scale=scale, frame=layout)
 
 
 def render_agreement(r2n2_masks: np.ndarray, our_masks: np.ndarray) -> float:
