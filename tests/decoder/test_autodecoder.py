@@ -7,7 +7,7 @@ import torch
 import lightning as L
 
 from ushape.decoder.artifacts import load_codes, load_decoder
-from ushape.decoder.autodecoder import AutoDecoderModule
+from ushape.decoder.autodecoder import AutoDecoderModule, deepsdf_lr_factor
 from ushape.decoder.datamodule import SDFDataModule
 from ushape.decoder.fit import fit_decoder
 from ushape.decoder.losses import clamped_l1
@@ -114,3 +114,22 @@ def test_fit_logs_training_and_validation(fitted_sphere_folder):
     assert events.Scalars("val/iou")[-1].value > 0.8
     assert events.Scalars("val/chamfer")[-1].value < 2e-3
     assert "val/mesh/r60" in events.Tags()["images"]
+
+
+def test_lr_steps_when_deepsdf_does():
+    # DeepSDF's epochs count from 1: its lr halves at its epoch 500, our (0-based) epoch 499.
+    factors = [deepsdf_lr_factor(e, step_epochs=500, gamma=0.5) for e in (0, 498, 499, 998, 999, 2000)]
+    assert factors == [1.0, 1.0, 0.5, 0.5, 0.25, 0.0625]  # the last: DeepSDF epoch 2001
+
+
+def test_module_schedule_follows_deepsdf(tiny_decoder_config):
+    module = AutoDecoderModule(decoder=tiny_decoder_config, num_shapes=2, latent_size=8, lr_net=1e-3, lr_codes=2e-3,
+                               lr_step_epochs=3, lr_gamma=0.5)
+    scheduler = module.configure_optimizers()["lr_scheduler"]["scheduler"]
+    lrs = []
+    for _ in range(7):  # the lr used in epochs 0..6, then the epoch-end step Lightning takes
+        lrs.append([group["lr"] for group in scheduler.optimizer.param_groups])
+        scheduler.optimizer.step()
+        scheduler.step()
+    assert [round(net / 1e-3, 6) for net, _ in lrs] == [1, 1, 0.5, 0.5, 0.5, 0.25, 0.25]
+    assert all(codes == pytest.approx(2 * net) for net, codes in lrs)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from functools import partial
 from typing import Any
 
 import lightning as L
@@ -35,6 +36,15 @@ def resolve_decoder_config(decoder: Any, latent_size: int) -> dict[str, Any]:
     if config["latent_size"] != latent_size:
         raise ValueError(f"decoder latent_size {config['latent_size']} differs from the module's latent_size {latent_size}")
     return config
+
+
+def deepsdf_lr_factor(epoch: int, step_epochs: int, gamma: float) -> float:
+    """DeepSDF's StepLearningRateSchedule factor gamma ** (epoch_1 // step) at our 0-based `epoch`.
+
+    DeepSDF counts epochs from 1, so its first drop comes at our epoch step - 1 (torch's StepLR,
+    counting from 0, would drop one epoch late), as its code regulariser's ramp does.
+    """
+    return gamma ** ((epoch + 1) // step_epochs)
 
 
 class AutoDecoderModule(L.LightningModule):
@@ -110,8 +120,8 @@ class AutoDecoderModule(L.LightningModule):
             {"params": self.decoder.parameters(), "lr": hp.lr_net},
             {"params": self.codes.parameters(), "lr": hp.lr_codes},
         ])
-        # DeepSDF's StepLearningRateSchedule: lr * gamma ** (epoch // step), for both groups.
-        scheduler = torch.optim.lr_scheduler.StepLR(optimiser, step_size=hp.lr_step_epochs, gamma=hp.lr_gamma)
+        scheduler = torch.optim.lr_scheduler.LambdaLR(
+            optimiser, partial(deepsdf_lr_factor, step_epochs=hp.lr_step_epochs, gamma=hp.lr_gamma))
         return {"optimizer": optimiser, "lr_scheduler": {"scheduler": scheduler, "interval": "epoch"}}
 
     def validation_step(self, batch: dict[str, Any], batch_idx: int) -> None:

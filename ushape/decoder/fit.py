@@ -60,6 +60,8 @@ def fit_decoder(
     fitter.fit(model, datamodule=datamodule, ckpt_path=str(last) if last.exists() else None)
     if fitter.interrupted:
         raise RuntimeError(f"stage-1 training was interrupted; rerun to resume from {last}")
+    if not fitter.is_global_zero:  # another DDP rank: rank 0 writes the decoder folder
+        return out_dir
     train_seconds = time.time() - started
 
     model.cpu().eval()
@@ -70,6 +72,8 @@ def fit_decoder(
     atomic.write_json(out_dir / DONE_FILE, {
         "world_root": str(Path(world_root).resolve()),
         "epochs": fitter.current_epoch,
+        "precision": str(fitter.precision),
+        "devices": fitter.world_size,
         "train_seconds": round(train_seconds, 1),
         "total_seconds": round(time.time() - started, 1),
     })

@@ -11,6 +11,8 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
+import time
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
@@ -30,6 +32,10 @@ def decoder_identity(cfg: DictConfig) -> dict[str, Any]:
     """The part of the config that determines the stage-1 decoder (not logging, workers or device)."""
     data = OmegaConf.to_container(cfg.data, resolve=True)
     data.pop("num_workers", None)
+    stage1 = OmegaConf.to_container(cfg.stage1, resolve=True)
+    # Left out as the trainer's precision always was, so decoders trained before stage1.precision
+    # existed (all fp32 on CPU) are still found.
+    stage1.pop("precision", None)
     if data.get("_target_") == _SYNTHETIC_TARGET:
         data.pop("root", None)
     elif data.get("root") is not None:
@@ -38,7 +44,7 @@ def decoder_identity(cfg: DictConfig) -> dict[str, Any]:
         "category": cfg.category.name,
         "data": data,
         "decoder": OmegaConf.to_container(cfg.decoder, resolve=True),
-        "stage1": OmegaConf.to_container(cfg.stage1, resolve=True),
+        "stage1": stage1,
         "seed": int(cfg.seed),
     }
 
@@ -56,11 +62,29 @@ def is_complete(decoder_dir: Path) -> bool:
     return (decoder_dir / DONE_FILE).exists()
 
 
-def ensure_decoder(cfg: DictConfig, train: Callable[[Path], None], lock_timeout_s: float = -1) -> Path:
-    """Return the finished decoder folder for `cfg`, calling `train(folder)` only if none exists yet."""
+def wait_until_complete(decoder_dir: Path, poll_s: float = 1.0) -> None:
+    """Block until another process marks `decoder_dir` complete; fail if the process that started us dies."""
+    parent = os.getppid()
+    while not is_complete(decoder_dir):
+        if os.getppid() != parent:
+            raise RuntimeError(f"the process that launched this rank exited before finishing {decoder_dir}")
+        time.sleep(poll_s)
+
+
+def ensure_decoder(cfg: DictConfig, train: Callable[[Path], None], lock_timeout_s: float = -1,
+                   main: bool = True) -> Path:
+    """Return the finished decoder folder for `cfg`, calling `train(folder)` only if none exists yet.
+
+    main=False is another rank of a DDP run whose rank 0 holds the lock: it calls `train` too (to join
+    rank 0's fit, which alone writes the folder), then waits for the folder to be complete.
+    """
     folder = decoder_dir_for(cfg)
     if is_complete(folder):
         log.info("Reusing the stage-1 decoder in %s", folder)
+        return folder
+    if not main:
+        train(folder)
+        wait_until_complete(folder)
         return folder
     folder.mkdir(parents=True, exist_ok=True)
     identity_file = folder / "identity.json"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -24,20 +25,34 @@ from ushape.experiment.summary import RUN_SUMMARY, print_config, print_summary
 log = logging.getLogger(__name__)
 
 STAGES = ("decoder", "encoder")
+# Set by whoever starts the processes of a distributed run: Lightning's DDP launcher (LOCAL_RANK,
+# NODE_RANK, RANK) or Slurm (SLURM_PROCID). All unset or 0 in the process that writes the results.
+RANK_VARIABLES = ("RANK", "LOCAL_RANK", "NODE_RANK", "SLURM_PROCID")
+
+
+def is_main_process() -> bool:
+    """False in the other processes of a DDP run: they train alongside, and write nothing of their own."""
+    return all(os.environ.get(name, "0") == "0" for name in RANK_VARIABLES)
 
 
 def run(cfg: DictConfig) -> float | None:
-    """Train the configured stage(s); returns the metric a sweeper would minimise (val loss)."""
+    """Train the configured stage(s); returns the metric a sweeper would minimise (val loss).
+
+    Under DDP every process runs this (Lightning's launcher reruns `train.py` for ranks > 0 when the
+    first `fit` starts); the other ranks join both fits and leave the folders to rank 0.
+    """
     if cfg.stage not in STAGES:
         raise ValueError(f"stage={cfg.stage!r} is not one of {STAGES}")
+    main = is_main_process()
     out_dir = Path(cfg.paths.output_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
-    print_config(cfg, out_dir / "config_tree.txt")
+    if main:
+        print_config(cfg, out_dir / "config_tree.txt")
     L.seed_everything(cfg.seed, workers=True)
     started = time.time()
 
     world = build_world(cfg)
-    decoder_dir = ensure_decoder(cfg, lambda folder: train_decoder(cfg, world, folder))
+    decoder_dir = ensure_decoder(cfg, lambda folder: train_decoder(cfg, world, folder), main=main)
     summary: dict[str, Any] = {"stage": cfg.stage, "world": str(world.root), "decoder_dir": str(decoder_dir)}
     metric = None
     if cfg.stage == "encoder":
@@ -45,12 +60,16 @@ def run(cfg: DictConfig) -> float | None:
         if latent_dir != decoder_dir:
             summary["latent_basis_dir"] = str(latent_dir)
         checkpoint = train_encoder(cfg, world, latent_dir, out_dir)
+        if not main:
+            return None
         summary["encoder_checkpoint"] = str(checkpoint)
         meshes = write_demo_meshes(checkpoint, world, out_dir / "meshes", **_plain(cfg.stage2.get("demo_meshes") or {}))
         if meshes is not None:
             summary["meshes"] = str(meshes)
         summary["tensorboard"] = str(out_dir / "tensorboard")
         metric = _checkpoint_score(checkpoint)
+    elif not main:
+        return None
     else:
         summary["tensorboard"] = str(decoder_dir / "tensorboard")
     summary["seconds"] = round(time.time() - started, 1)
@@ -75,7 +94,7 @@ def train_decoder(cfg: DictConfig, world: WorldIndex, folder: Path) -> None:
         out_dir=folder,
         decoder=_plain(cfg.decoder),
         module=_plain(s1.module),
-        trainer={**_plain(cfg.trainer), "max_epochs": s1.max_epochs},
+        trainer=stage_trainer(cfg.trainer, s1),
         data=_plain(s1.data),
         latent_optim=_plain(s1.latent_optim),
         checkpoint_every_n_epochs=s1.checkpoint_every_n_epochs,
@@ -94,9 +113,17 @@ def train_encoder(cfg: DictConfig, world: WorldIndex, decoder_dir: Path, out_dir
         loss=_plain(cfg.loss),
         module={**_plain(s2.module), "max_epochs": s2.max_epochs},
         data={**_plain(s2.data), "seed": cfg.seed},
-        trainer={**_plain(cfg.trainer), "max_epochs": s2.max_epochs},
+        trainer=stage_trainer(cfg.trainer, s2),
         logger=logger,
     )
+
+
+def stage_trainer(trainer: DictConfig, stage: DictConfig) -> dict[str, Any]:
+    """Trainer kwargs of one stage: the trainer group with the stage's epochs, and its precision unless null."""
+    kwargs = {**_plain(trainer), "max_epochs": stage.max_epochs}
+    if stage.get("precision") is not None:
+        kwargs["precision"] = stage.precision
+    return kwargs
 
 
 def _checkpoint_score(checkpoint: Path) -> float | None:
