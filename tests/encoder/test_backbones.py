@@ -77,3 +77,17 @@ def test_resnet_rejects_a_foreign_state_dict(tmp_path):
         resnet18(weights_path=str(path))
     with pytest.raises(FileNotFoundError):
         resnet18(weights_path=str(tmp_path / "missing.pth"))
+
+
+def test_lite0_stage_pooling_ends_with_the_head_features():
+    from ushape.encoder.backbones import efficientnet_lite0
+
+    stages, dim = efficientnet_lite0(pretrained=False, pooling="stages")
+    head, head_dim = efficientnet_lite0(pretrained=False)
+    head.load_state_dict(stages.state_dict())
+    stages.eval(), head.eval()
+    x = torch.rand(2, 3, 40, 40)
+    with torch.no_grad():
+        out = stages(x)
+        assert out.shape == (2, dim) and dim == 784 + head_dim
+        assert torch.allclose(out[:, -head_dim:], head(x), atol=1e-6)

@@ -61,3 +61,30 @@ def test_head_started_at_a_gaussian_predicts_it_for_any_features():
     head.start_at(mean, torch.tensor([1e-30, 1.0, 1.0, 1e30]))  # beyond the clamp: kept just inside it
     _, logvar = head(torch.randn(2, 16))
     assert torch.isfinite(logvar).all() and (logvar > head.logvar_min).all() and (logvar < head.logvar_max).all()
+
+
+def test_mixture_moments_of_two_members_by_hand():
+    from ushape.encoder.heads import mixture_moments
+
+    mu = torch.tensor([[[0.0, 1.0]], [[2.0, 1.0]]])  # [E=2, B=1, D=2]
+    var = torch.tensor([[[1.0, 0.5]], [[3.0, 0.5]]])
+    mean, logvar = mixture_moments(mu, var.log())
+    assert torch.allclose(mean, torch.tensor([[1.0, 1.0]]))
+    # var = mean of variances (2, 0.5) + spread of means (1, 0)
+    assert torch.allclose(logvar.exp(), torch.tensor([[3.0, 0.5]]))
+
+
+def test_ensemble_members_see_a_fixed_share_of_the_shapes():
+    from ushape.encoder.heads import GaussianEnsemble
+
+    head = GaussianEnsemble(in_dim=6, latent_size=3, members=4, keep=0.5, hidden=5)
+    ids = [f"shape_{i}" for i in range(400)]
+    share = head.member_of(ids)
+    assert share.shape == (4, 400) and torch.equal(share, head.member_of(ids))
+    assert 0.4 < share.float().mean() < 0.6
+    assert not torch.equal(share[0], share[1])  # members see different shapes
+    mu, logvar = head(torch.randn(7, 6))
+    assert mu.shape == logvar.shape == (7, 3) and head.latent_size == 3
+    head.start_at(torch.ones(3), torch.full((3,), 0.2))
+    mu, logvar = head(torch.randn(2, 6))
+    assert torch.allclose(mu, torch.ones(2, 3)) and torch.allclose(logvar.exp(), torch.full((2, 3), 0.2), rtol=1e-4)

@@ -119,20 +119,23 @@ class EncoderDataModule(L.LightningDataModule):
         self.save_hyperparameters()
         self.datasets: dict[str, RenderDataset] = {}
 
-    def _dataset(self, split: str, train: bool) -> RenderDataset:
+    def dataset(self, split: str, train: bool, seed: int | None = None) -> RenderDataset:
+        """The split's views, augmented if `train`; repeatable unless training without a `seed`."""
         hp = self.hparams
         codes = load_codes(Path(hp.decoder_dir) / codes_file(split))
         transform = build_transform(hp.image_size, train, hp.min_scale, hp.mask_mode, hp.background_dir, hp.flip)
         views = list(hp.views) if hp.views is not None else None
-        return RenderDataset(hp.world_root, split, codes, hp.image_size, views, transform, not train, hp.seed)
+        deterministic = not train or seed is not None
+        return RenderDataset(hp.world_root, split, codes, hp.image_size, views, transform, deterministic,
+                             hp.seed if seed is None else seed)
 
     def setup(self, stage: str | None = None) -> None:
         if stage in (None, "fit") and "train" not in self.datasets:
-            self.datasets["train"] = self._dataset("train", train=True)
+            self.datasets["train"] = self.dataset("train", train=True)
         if stage in (None, "fit", "validate") and "val" not in self.datasets:
-            self.datasets["val"] = self._dataset("val", train=False)
+            self.datasets["val"] = self.dataset("val", train=False)
         if stage in (None, "test") and "test" not in self.datasets:
-            self.datasets["test"] = self._dataset("test", train=False)
+            self.datasets["test"] = self.dataset("test", train=False)
 
     def _loader(self, split: str, shuffle: bool) -> DataLoader:
         hp = self.hparams

@@ -10,16 +10,21 @@ Layout of a decoder folder (every name lives here, nowhere else):
 
 from __future__ import annotations
 
+import logging
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import torch
+from filelock import FileLock
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 from torch import Tensor, nn
 
 from ushape import atomic
+
+log = logging.getLogger(__name__)
 
 DECODER_FILE = "decoder.pt"
 CHECKPOINT_DIR = "checkpoints"
@@ -83,3 +88,24 @@ def load_codes(path: str | Path) -> CodeTable:
         raise FileNotFoundError(f"no code table at {path}: stage 1 writes it (`python train.py stage=decoder`)")
     blob = torch.load(path, map_location="cpu", weights_only=False)
     return CodeTable(list(blob["shape_ids"]), blob["codes"].float())
+
+
+def derived_folder(out_dir: str | Path, build: Callable[[Path], None], what: str) -> Path:
+    """A stage-1 folder made from another one (rebased, re-coded), built once by `build(out_dir)`.
+
+    Sweep jobs running at once build it only once (file lock); it counts as finished only when
+    `build` has written DONE last, and an interrupted build is started again from scratch.
+    """
+    out_dir = Path(out_dir)
+    if (out_dir / DONE_FILE).is_file():
+        return out_dir
+    with FileLock(str(out_dir) + ".lock"):
+        if (out_dir / DONE_FILE).is_file():
+            return out_dir
+        if out_dir.exists():
+            shutil.rmtree(out_dir)
+        log.info("writing %s into %s", what, out_dir)
+        build(out_dir)
+    if not (out_dir / DONE_FILE).is_file():
+        raise RuntimeError(f"building {what} did not finish {out_dir} (no {DONE_FILE})")
+    return out_dir

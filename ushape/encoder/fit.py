@@ -14,6 +14,7 @@ from omegaconf import OmegaConf
 
 from ushape import atomic
 from ushape.data.render_dataset import EncoderDataModule
+from ushape.encoder.feature_cache import FeatureDataModule
 from ushape.encoder.module import EncoderModule
 
 log = logging.getLogger(__name__)
@@ -36,6 +37,14 @@ def _plain(config: Mapping[str, Any] | None) -> dict[str, Any]:
     return OmegaConf.to_container(config, resolve=True) if OmegaConf.is_config(config) else dict(config)
 
 
+def cached_feature_data(images: EncoderDataModule, model: EncoderModule, train_passes: int) -> FeatureDataModule:
+    """The views of `images` as cached features of the model's frozen backbone (see feature_cache)."""
+    if not model.encoder.freeze_backbone:
+        raise ValueError("stage2.data.cached_features=true needs a frozen backbone: set encoder.freeze_backbone=true")
+    identity = {"backbone": model.hparams.encoder["backbone"]}
+    return FeatureDataModule(images, model.encoder.features, identity, train_passes, images.hparams.batch_size)
+
+
 def fit_encoder(
     world_root: str | Path,
     decoder_dir: str | Path,
@@ -51,13 +60,19 @@ def fit_encoder(
 ) -> Path:
     """Fit EncoderModule(**module) on EncoderDataModule(**data) with L.Trainer(**trainer).
 
+    data may also hold cached_features (train the head on cached frozen-backbone features) and
+    train_passes (views encoded per training view: one clean, the rest augmented).
     Checkpoints go to <out_dir>/checkpoints/ (best.ckpt by `monitor`, last.ckpt); an existing
     last.ckpt is resumed. Returns the best checkpoint (last.ckpt if none was ranked).
     """
     out_dir = Path(out_dir)
     ckpt_dir = out_dir / CHECKPOINT_DIR
-    datamodule = EncoderDataModule(world_root=str(world_root), decoder_dir=str(decoder_dir), **_plain(data))
+    data = _plain(data)
+    cached, train_passes = data.pop("cached_features", False), data.pop("train_passes", 1)
+    datamodule = EncoderDataModule(world_root=str(world_root), decoder_dir=str(decoder_dir), **data)
     model = EncoderModule(decoder_path=str(decoder_dir), encoder=_plain(encoder), loss=_plain(loss), **_plain(module))
+    if cached:
+        datamodule = cached_feature_data(datamodule, model, train_passes)
     checkpoint = ModelCheckpoint(dirpath=ckpt_dir, filename=BEST_NAME, monitor=monitor, mode="min", save_last=True)
     if logger is None:
         logger = TensorBoardLogger(save_dir=str(out_dir), name="tensorboard")

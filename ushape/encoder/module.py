@@ -23,7 +23,7 @@ from torch import Tensor
 
 from ushape.decoder.artifacts import codes_file, load_codes, load_decoder
 from ushape.encoder.figures import mesh_panel, render_code
-from ushape.encoder.heads import ImageEncoder
+from ushape.encoder.heads import GaussianEnsemble, ImageEncoder
 from ushape.encoder.latent_metrics import latent_scores
 from ushape.encoder.losses import l2_loss
 from ushape.evaluation.calibration import calibration_curve, plot_calibration
@@ -104,9 +104,9 @@ class EncoderModule(L.LightningModule):
         # object.__setattr__ keeps the decoder out of parameters(), state_dict() and the optimiser.
         object.__setattr__(self, "decoder", load_decoder(decoder_path, frozen=True))
         decoder_latent = getattr(self.decoder, "latent_size", None)
-        if decoder_latent is not None and decoder_latent != self.encoder.head.mean.out_features:
+        if decoder_latent is not None and decoder_latent != self.encoder.head.latent_size:
             raise ValueError(
-                f"encoder.latent_size={self.encoder.head.mean.out_features} but the decoder at "
+                f"encoder.latent_size={self.encoder.head.latent_size} but the decoder at "
                 f"{decoder_path} takes codes of size {decoder_latent}; set encoder.latent_size={decoder_latent}"
             )
         if head_init == "prior":
@@ -116,27 +116,51 @@ class EncoderModule(L.LightningModule):
 
     def forward(self, images: Tensor) -> tuple[Tensor, Tensor]:
         """images [B, 3, H, W] in [0, 1] -> (mu [B, D], logvar [B, D]); logvar is 0 for an l2 model."""
-        with torch.autocast(images.device.type, dtype=torch.bfloat16, enabled=self.hparams.bf16):
-            mu, logvar = self.encoder(images)
+        return self._head_outputs(lambda: self.encoder(images), images.device)
+
+    def _head_outputs(self, run: Callable[[], tuple[Tensor, Tensor]], device: torch.device) -> tuple[Tensor, Tensor]:
+        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=self.hparams.bf16):
+            mu, logvar = run()
         mu, logvar = mu.float(), logvar.float()
         # x0 rather than zeros_like keeps the unused head in the graph (DDP wants every parameter used).
         return (mu, logvar) if self.predicts_variance else (mu, logvar * 0.0)
 
+    def predict_batch(self, batch: dict) -> tuple[Tensor, Tensor]:
+        """(mu, logvar) [B, D] of a batch of images, or of cached backbone features (FeatureDataModule)."""
+        if "features" in batch:
+            return self._head_outputs(lambda: self.encoder.head(batch["features"]), batch["features"].device)
+        return self(batch["image"])
+
     def training_step(self, batch: dict, batch_idx: int) -> Tensor:
-        mu, logvar = self(batch["image"])
-        loss = self.loss_fn(mu, logvar, batch["code"])
-        self.log("train/loss", loss, prog_bar=True, batch_size=mu.shape[0])
+        head = self.encoder.head
+        if isinstance(head, GaussianEnsemble):
+            loss = self._ensemble_loss(head, batch)
+            batch_size = len(batch["shape_id"])
+        else:
+            mu, logvar = self.predict_batch(batch)
+            loss, batch_size = self.loss_fn(mu, logvar, batch["code"]), mu.shape[0]
+        self.log("train/loss", loss, prog_bar=True, batch_size=batch_size)
         return loss
 
+    def _ensemble_loss(self, head: GaussianEnsemble, batch: dict) -> Tensor:
+        """Mean over members of each member's loss on the shapes of its bootstrap share."""
+        features = batch["features"] if "features" in batch else self.encoder.features(batch["image"])
+        mus, logvars = self._head_outputs(lambda: head.member_outputs(features), features.device)
+        member_of = head.member_of(list(batch["shape_id"])).to(features.device)
+        losses = [self.loss_fn(mu[rows], logvar[rows], batch["code"][rows])
+                  for mu, logvar, rows in zip(mus, logvars, member_of) if rows.any()] or [mus.sum() * 0.0]
+        # A member with no shape of its share in this batch still joins the graph (DDP), with weight 0.
+        return torch.stack(losses).mean() + 0.0 * (mus.sum() + logvars.sum())
+
     def _eval_step(self, batch: dict, prefix: str) -> None:
-        mu, logvar = self(batch["image"])
+        mu, logvar = self.predict_batch(batch)
         generator = torch.Generator(device=mu.device).manual_seed(0)
         loss = self.loss_fn(mu, logvar, batch["code"], **({"generator": generator} if self._loss_takes_generator else {}))
         self.log(f"{prefix}/loss", loss, prog_bar=True, batch_size=mu.shape[0])
         out = self._outputs
         for key, value in (("mu", mu), ("logvar", logvar), ("code", batch["code"])):
             out.setdefault(key, []).append(value.detach())
-        if self.hparams.log_meshes and len(out.setdefault("images", [])) < self.hparams.mesh_views:
+        if self.hparams.log_meshes and "image" in batch and len(out.setdefault("images", [])) < self.hparams.mesh_views:
             take = self.hparams.mesh_views - len(out["images"])
             out["images"] += list(batch["image"][:take].detach().cpu())
             out.setdefault("mesh_codes", []).extend(zip(mu[:take].detach(), batch["code"][:take]))
@@ -194,7 +218,7 @@ class EncoderModule(L.LightningModule):
 
     def configure_optimizers(self):
         hp = self.hparams
-        params = list(self.encoder.parameters())
+        params = [p for p in self.encoder.parameters() if p.requires_grad]  # a frozen backbone stays out
         if hp.optimizer == "sgd":
             opt = torch.optim.SGD(params, lr=hp.lr, momentum=hp.momentum, weight_decay=hp.weight_decay)
         else:

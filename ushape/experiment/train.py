@@ -17,6 +17,7 @@ from ushape import atomic
 from ushape.data.layout import WorldIndex
 from ushape.decoder.basis import ensure_basis
 from ushape.decoder.fit import fit_decoder
+from ushape.decoder.recode import ensure_codes
 from ushape.encoder.fit import fit_encoder
 from ushape.experiment.decoder_store import ensure_decoder
 from ushape.experiment.demo_meshes import write_demo_meshes
@@ -56,7 +57,8 @@ def run(cfg: DictConfig) -> float | None:
     summary: dict[str, Any] = {"stage": cfg.stage, "world": str(world.root), "decoder_dir": str(decoder_dir)}
     metric = None
     if cfg.stage == "encoder":
-        latent_dir = ensure_basis(decoder_dir, cfg.stage2.get("latent_basis", "identity"))
+        coded_dir = ensure_codes(decoder_dir, cfg.stage2.get("codes", "autodecoder"), world.root, _plain(cfg.stage1.latent_optim))
+        latent_dir = ensure_basis(coded_dir, cfg.stage2.get("latent_basis", "identity"))
         if latent_dir != decoder_dir:
             summary["latent_basis_dir"] = str(latent_dir)
         checkpoint = train_encoder(cfg, world, latent_dir, out_dir)

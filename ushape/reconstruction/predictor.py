@@ -124,7 +124,7 @@ class Predictor:
 
     @property
     def latent_size(self) -> int:
-        return int(self.model.encoder.head.mean.out_features)
+        return int(self.model.encoder.head.latent_size)
 
     @torch.no_grad()
     def encode(self, images: Tensor) -> tuple[Tensor, Tensor]:
