@@ -1,90 +1,83 @@
-"""Signs of our SDF on the real sample models against their official voxelisations."""
+"""Signs of our SDF on every real sample model against its official voxelisation (tolerant check).
+
+A sample is compared only when it lies at least one voxel from the voxel surface (its voxel
+and all 26 neighbours agree): faces on voxel boundaries and thin parts thickened to a voxel
+make the voxels differ from the mesh nearer than that (see ushape.data.voxel_check).
+"""
+
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
-from trimesh.exchange.binvox import parse_binvox, voxel_from_binvox
 
-from ushape.data.mesh_sdf import MeshSdf, load_mesh, normalise_mesh, sample_mesh_sdf
+from ushape.data.mesh_sdf import MeshSdf, SignReport, load_mesh, normalise_mesh, sample_mesh_sdf
 from ushape.data.pix3d import load_voxels, voxel_to_model
+from ushape.data.sampling import sample_points
+from ushape.data.voxel_check import has_interior, read_solid_binvox, tolerant_truth
 
+# As conftest.REAL_SAMPLE (a conftest cannot be imported by name here): parametrizing needs the list at collection.
+REAL_SAMPLE = Path(os.path.dirname(os.path.abspath(__file__))).parents[2] / "shared" / "data" / "real_sample"
 CHAIRS = "03001627"
 
 
-def read_solid_binvox(path):
-    """(occupancy [D,D,D] indexed x,y,z, voxel-centre map index->model [4,4]) of a binvox file."""
-    with open(path, "rb") as fh:
-        data = parse_binvox(fh)
-    occupancy = voxel_from_binvox(data.rle_data, data.shape, axis_order="xzy").encoding.dense
-    step = data.scale / data.shape[0]
-    # binvox_rw convention: voxel i covers translate + [i, i+1) * scale / dim.
-    transform = np.diag([step, step, step, 1.0])
-    transform[:3, 3] = np.asarray(data.translate) + 0.5 * step
-    return occupancy, transform
+def real_models():
+    """(test id, model file, voxel file) of every ShapeNetCore.v2 and Pix3D model in the shared sample."""
+    shapenet = sorted(REAL_SAMPLE.glob("ShapeNetCore.v2/*/*/models/model_normalized.obj"))
+    pix3d = sorted(REAL_SAMPLE.glob("pix3d/model/*/*/model.obj"))
+    return ([pytest.param(p, p.parent / "model_normalized.solid.binvox", id=p.parents[1].name[:8]) for p in shapenet]
+            + [pytest.param(p, p.parent / "voxel.mat", id=p.parent.name) for p in pix3d])
 
 
-def grid_check(mesh, occupancy, index_to_model, rng, n=6000):
-    """Agreement of our inside test with the voxels at voxel centres >= 2 voxels from the surface.
-
-    Half the centres are uniform over the grid (mostly outside), half drawn from occupied voxels,
-    so inside is tested too. Returns (agreement, n checked, agreement on occupied voxels or None).
-    """
-    uniform = np.stack([rng.integers(0, s, n // 2) for s in occupancy.shape], axis=1)
-    occupied = np.argwhere(occupancy)
-    index = np.concatenate([uniform, occupied[rng.integers(0, len(occupied), n - n // 2)]])
-    points = index @ index_to_model[:3, :3].T + index_to_model[:3, 3]
-    sdf = MeshSdf(mesh, n_surface_samples=50_000)
-    far = sdf.distance(points) > 2 * np.abs(index_to_model[:3, :3]).sum(axis=0).max()
-    truth = occupancy[tuple(index[far].T)]
-    agree = sdf.inside(points[far]) == truth
-    inside_agreement = float(agree[truth].mean()) if truth.sum() >= 50 else None
-    return float(agree.mean()), int(far.sum()), inside_agreement
+def official_voxels(model, voxel_file):
+    """(occupancy, voxel-centre index -> model frame [4,4]) of a model's official voxelisation."""
+    if voxel_file.suffix == ".mat":
+        occupancy = load_voxels(voxel_file)
+        return occupancy, voxel_to_model(load_mesh(model), occupancy.shape[0])
+    return read_solid_binvox(voxel_file)
 
 
-@pytest.fixture(params=["1a6f615e8b1b5ae4dbbc9440457e303e", "1b5e876f3559c231532a8e162f399205",
-                        "1b7ba5484399d36bc5e50b867ca2d0b9"])
-def chair_dir(request, shapenet_sample):
-    return shapenet_sample / CHAIRS / request.param / "models"
-
-
-def test_shapenet_signs_match_solid_binvox(chair_dir, rng):
-    mesh = load_mesh(chair_dir / "model_normalized.obj")
-    occupancy, transform = read_solid_binvox(chair_dir / "model_normalized.solid.binvox")
-    agreement, n, inside_agreement = grid_check(mesh, occupancy, transform, rng)
-    assert n > 2000 and agreement > 0.99
-    assert inside_agreement is None or inside_agreement > 0.97
+@pytest.mark.parametrize("model, voxel_file", real_models())
+def test_signs_agree_with_official_voxels(model, voxel_file, rng):
+    occupancy, index_to_model = official_voxels(model, voxel_file)
+    mesh, centre, scale = normalise_mesh(load_mesh(model))
+    points = sample_points(mesh, 6000, rng)
+    sdf = MeshSdf(mesh)
+    inside = sdf.inside(points)
+    report = SignReport.of(sdf.signs)
+    checked, truth = tolerant_truth(occupancy, index_to_model, points / scale + centre)
+    if has_interior(occupancy):
+        assert checked.sum() > 3000 and truth[checked].sum() > 300
+        assert np.mean(inside[checked] == truth[checked]) >= 0.99
+        assert report.confidence > 0.99
+    else:
+        # Surface-only voxels: the mesh is open (IKEA_HENRIKSDAL has no back), its flood-filled voxels
+        # are a hollow shell, and we fill what the surface mostly surrounds. Which was meant cannot
+        # be known from the mesh; the report must say the signs rest on that judgement.
+        assert report.confidence < 0.9 and report.leak > 0.01
 
 
 def test_shapenet_samples_match_binvox_in_normalised_frame(shapenet_sample, rng):
     chair_dir = shapenet_sample / CHAIRS / "1b7ba5484399d36bc5e50b867ca2d0b9" / "models"
     mesh, centre, scale = normalise_mesh(load_mesh(chair_dir / "model_normalized.obj"))
-    samples = sample_mesh_sdf(mesh, 20_000, rng, n_surface_samples=50_000)
+    samples, report = sample_mesh_sdf(mesh, 20_000, rng)
     occupancy, transform = read_solid_binvox(chair_dir / "model_normalized.solid.binvox")
     rows = np.concatenate([samples["pos"], samples["neg"]]).astype(np.float64)
-    model = rows[:, :3] / scale + centre
-    index = np.floor((model - transform[:3, 3]) / transform[0, 0] + 0.5).astype(int)
-    in_grid = np.all((index >= 0) & (index < occupancy.shape[0]), axis=1)
-    far = in_grid & (np.abs(rows[:, 3]) / scale > 2 * transform[0, 0])
-    truth = occupancy[tuple(index[far].T)]
-    assert far.sum() > 2000 and truth.any()
-    assert np.mean((rows[far, 3] < 0) == truth) > 0.99
-
-
-@pytest.mark.parametrize("model", ["chair/IKEA_HENRIKSDAL", "chair/IKEA_IVAR", "table/IKEA_LACK_1", "table/IKEA_MALM_1"])
-def test_pix3d_signs_match_voxel_mat(pix3d_sample, model, rng):
-    folder = pix3d_sample / "model" / model
-    mesh = load_mesh(folder / "model.obj")
-    occupancy = load_voxels(folder / "voxel.mat")
-    agreement, n, inside_agreement = grid_check(mesh, occupancy, voxel_to_model(mesh, occupancy.shape[0]), rng)
-    assert n > 2000 and agreement > 0.95
-    assert inside_agreement is None or inside_agreement > 0.95
+    checked, truth = tolerant_truth(occupancy, transform, rows[:, :3] / scale + centre)
+    assert checked.sum() > 10_000 and truth[checked].sum() > 1000
+    assert np.mean((rows[checked, 3] < 0) == truth[checked]) > 0.99
+    assert report.confidence > 0.99
 
 
 def test_pix3d_voxel_frame_puts_the_surface_on_occupied_voxels(pix3d_sample):
-    # The frame map is found independently of any sign test: surface points must land on voxels.
+    # The frame map is found independently of any sign test: surface points must land on or beside
+    # occupied voxels (a face on a voxel boundary may have been voxelised on its other side).
     for folder in sorted((pix3d_sample / "model").glob("*/*")):
         mesh = load_mesh(folder / "model.obj")
         occupancy = load_voxels(folder / "voxel.mat")
         to_index = np.linalg.inv(voxel_to_model(mesh))
         points = mesh.sample(3000)
-        index = np.clip(np.rint(points @ to_index[:3, :3].T + to_index[:3, 3]).astype(int), 0, 127)
-        assert occupancy[tuple(index.T)].mean() > 0.9, folder.name
+        index = np.rint(points @ to_index[:3, :3].T + to_index[:3, 3]).astype(int)
+        offsets = np.stack(np.meshgrid(*[[-1, 0, 1]] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+        near = np.clip(index[:, None, :] + offsets, 0, 127)
+        assert occupancy[tuple(near.transpose(2, 0, 1))].any(axis=1).mean() > 0.99, folder.name

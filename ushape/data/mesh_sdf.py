@@ -3,43 +3,38 @@
 Real meshes are triangle soups: open, with inner faces, flipped or inconsistent normals and
 duplicated geometry. So the two halves of the SDF are computed separately:
 
-- Magnitude: exact point-to-triangle distance, to candidate triangles found through a
-  k-d tree over dense area-weighted surface samples (trimesh's closest_point needs rtree and
-  is slower). The nearest sample's own triangle is always a candidate, so the result is never
-  worse than the sample distance and is exact when the closest triangle is among the k.
-- Sign: ray escape ("virtual views", as DeepSDF's visibility idea but without a rasteriser).
-  From each point, cast `n_rays` rays over the sphere (Fibonacci directions under a random
-  rotation per point); the point is outside if at least `inside_threshold` of them leave to
-  infinity. It never reads face orientation, so flipped normals and inconsistent winding
-  cannot break it (a generalised winding number can: a double-sided wall cancels to zero);
-  inner faces and duplicates only add hits to rays that were blocked anyway; a hole lets a
-  few rays out, which the threshold tolerates; single-sided sheets enclose nothing, exactly
-  as binvox's solid voxelisation (flood fill from outside) treats them.
-  Measured on the three ShapeNet sample chairs against `model_normalized.solid.binvox`:
-  100% agreement on points more than two voxels from the surface for thresholds 0.02-0.1
-  and 16-64 rays; escape fractions are bimodal (0 inside, >= 0.1 almost always outside).
+- Magnitude: exact point-to-triangle distance (libigl's AABB tree).
+- Sign: `ushape.data.mesh_signs`: the generalised winding number of the mesh after its patches
+  are oriented outward, with the ray-escape test deciding only where the winding number is
+  between 1/4 and 3/4. Unions of closed parts with open compartments between them, surfaces
+  with holes, flipped and non-manifold faces all get the signs a person would give them.
 - Normalisation: DeepSDF's (bounding-box centre to the origin, farthest vertex at radius
   1/1.03), the same frame the synthetic shapes use.
 
 Anything that makes a mesh unusable raises `MeshProcessingError`, which dataset builders
-catch, log and skip, so one bad model never stops a whole preprocessing run.
+catch, log and skip, so one bad model never stops a whole preprocessing run. A mesh whose
+inside cannot be told (much of its surface missing) is one of them; every accepted mesh comes
+with a `SignReport` saying how often the winding number needed the rays' help and how sure the
+result is, which the builders write into the shape's record.
 """
 
 from __future__ import annotations
 
+import json
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Optional
 
+import igl
 import numpy as np
 import trimesh
-from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
-from ushape.data.sampling import area_weighted_surface_points, sample_sdf
+from ushape.data.mesh_signs import MeshSigns, SignTally
+from ushape.data.sampling import sample_points, split_by_sign
 from ushape.data.shading import DEFAULT_ALBEDO
 
 UNIT_SPHERE_BUFFER = 1.03  # DeepSDF: farthest vertex at 1/1.03 leaves room for the decoder's band
-RAY_CHUNK = 8192  # points per Embree batch: n_rays x this many rays stay ~100 MB
+SIGN_METHOD = "winding number of outward-oriented patches; ray escape where 1/4 < |w| < 3/4"
 
 
 class MeshProcessingError(ValueError):
@@ -127,107 +122,67 @@ def normalise_mesh(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, np.ndarray, 
     return normalised, centre, scale
 
 
-def sphere_directions(n: int) -> np.ndarray:
-    """n near-uniform unit vectors [n,3] on the sphere (Fibonacci lattice)."""
-    i = np.arange(n) + 0.5
-    polar = np.arccos(1.0 - 2.0 * i / n)
-    azimuth = np.pi * (1.0 + 5.0**0.5) * i
-    return np.stack([np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar), np.cos(polar)], axis=1)
-
-
-def escape_fraction(mesh: trimesh.Trimesh, points: np.ndarray, n_rays: int, rng: np.random.Generator) -> np.ndarray:
-    """Fraction [N] of n_rays rays from each point [N,3] that hit no triangle."""
-    if n_rays < 1:
-        raise ValueError(f"n_rays must be at least 1, got {n_rays}")
-    base = sphere_directions(n_rays)
-    intersector = mesh.ray
-    out = np.empty(len(points))
-    for start in range(0, len(points), RAY_CHUNK):
-        chunk = points[start:start + RAY_CHUNK]
-        # A random rotation per point keeps neighbouring points from sharing blind spots.
-        rotations = Rotation.random(len(chunk), random_state=rng).as_matrix()
-        directions = np.einsum("pij,rj->pri", rotations, base).reshape(-1, 3)
-        origins = np.repeat(chunk, n_rays, axis=0)
-        hit = intersector.intersects_any(origins, directions).reshape(len(chunk), n_rays)
-        out[start:start + len(chunk)] = 1.0 - hit.mean(axis=1)
-    return out
-
-
-class SurfaceDistance:
-    """Unsigned distance to a mesh's triangles via k-d tree candidates and exact point-triangle tests."""
-
-    def __init__(self, mesh: trimesh.Trimesh, n_surface_samples: int = 200_000, k: int = 4, seed: int = 0) -> None:
-        check_mesh(mesh)
-        samples, faces = area_weighted_surface_points(mesh, n_surface_samples, np.random.default_rng(seed))
-        # Every triangle's first vertex joins the samples, so tiny triangles are never unreachable.
-        self._points = np.concatenate([samples, mesh.triangles[:, 0]])
-        self._faces = np.concatenate([faces, np.arange(len(mesh.faces))])
-        # An unbalanced tree with bigger leaves builds in ms and answers these queries ~2x faster.
-        self._tree = cKDTree(self._points, leafsize=32, balanced_tree=False, compact_nodes=False)
-        self._triangles = mesh.triangles
-        self.k = int(k)
-
-    def __call__(self, points: np.ndarray) -> np.ndarray:
-        """Distance [N] from points [N,3] to the nearest triangle."""
-        points = np.asarray(points, np.float64)
-        _, nearest = self._tree.query(points, k=self.k)
-        candidates = self._faces[nearest.reshape(len(points), -1)]  # [N,k]
-        # Neighbouring samples often share a triangle; test each distinct (point, triangle) once.
-        distinct = np.ones(candidates.shape, bool)
-        for j in range(1, candidates.shape[1]):
-            distinct[:, j] = np.all(candidates[:, j:j + 1] != candidates[:, :j], axis=1)
-        rows, cols = np.nonzero(distinct)
-        closest = trimesh.triangles.closest_point(self._triangles[candidates[rows, cols]], points[rows])
-        distance = np.full(candidates.shape, np.inf)
-        distance[rows, cols] = np.linalg.norm(closest - points[rows], axis=1)
-        return distance.min(axis=1)
-
-
 class MeshSdf:
-    """Signed distance [N] of points [N,3] to a real mesh: exact magnitude, ray-escape sign (< 0 inside)."""
+    """Signed distance [N] of points [N,3] to a real mesh: exact magnitude, winding-number sign (< 0 inside)."""
 
-    def __init__(
-        self,
-        mesh: trimesh.Trimesh,
-        n_rays: int = 32,
-        inside_threshold: float = 0.05,
-        ambiguous_band: tuple[float, float] = (0.02, 0.1),
-        max_ambiguous_fraction: float = 0.5,
-        n_surface_samples: int = 200_000,
-        seed: int = 0,
-    ) -> None:
-        if not 0.0 < inside_threshold < 1.0:
-            raise ValueError(f"inside_threshold must be in (0, 1), got {inside_threshold}")
-        self.mesh = mesh
-        self.n_rays = int(n_rays)
-        self.inside_threshold = float(inside_threshold)
-        self.ambiguous_band = ambiguous_band
-        self.max_ambiguous_fraction = float(max_ambiguous_fraction)
-        self.distance = SurfaceDistance(mesh, n_surface_samples=n_surface_samples, seed=seed)
-        self._rng = np.random.default_rng(seed)
-        self.last_ambiguous_fraction = 0.0
+    def __init__(self, mesh: trimesh.Trimesh, n_rays: int = 32, seed: int = 0) -> None:
+        check_mesh(mesh)
+        self.signs = MeshSigns(mesh, n_rays=n_rays, seed=seed)
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """Distance [N] from points [N,3] to the nearest triangle."""
+        points = np.ascontiguousarray(points, np.float64)
+        squared, _, _ = igl.point_mesh_squared_distance(points, self.signs.vertices, self.signs.all_faces)
+        return np.sqrt(squared)
 
     def inside(self, points: np.ndarray) -> np.ndarray:
-        """Bool [N]: fewer than inside_threshold of the rays from the point escape.
-
-        Raises MeshProcessingError when most points' escape fractions fall in the ambiguous
-        band, i.e. the mesh is too broken (holes everywhere, triangle soup) to tell inside from out.
-        """
-        fraction = escape_fraction(self.mesh, np.asarray(points, np.float64), self.n_rays, self._rng)
-        lo, hi = self.ambiguous_band
-        self.last_ambiguous_fraction = float(np.mean((fraction > lo) & (fraction < hi))) if len(points) else 0.0
-        if self.last_ambiguous_fraction > self.max_ambiguous_fraction:
-            raise MeshProcessingError(
-                f"sign test inconclusive on {self.last_ambiguous_fraction:.0%} of points "
-                f"(escape fraction in {self.ambiguous_band}); the mesh is too open to tell inside from outside"
-            )
-        return fraction < self.inside_threshold
+        """Bool [N]: the point is inside the mesh (see ushape.data.mesh_signs)."""
+        return self.signs.inside(points)
 
     def sdf(self, points: np.ndarray) -> np.ndarray:
         """Signed distance [N] of points [N,3]; negative inside."""
         points = np.asarray(points, np.float64)
-        magnitude = self.distance(points)
-        return np.where(self.inside(points), -magnitude, magnitude)
+        distance = self.distance(points)
+        return np.where(self.inside(points), -distance, distance)
+
+
+@dataclass(frozen=True)
+class SignReport:
+    """How one mesh's SDF signs were decided, for filtering a dataset by how sure they are."""
+
+    method: str
+    samples: int
+    confidence: float  # share of samples both tests are clear about (see mesh_signs.SignTally)
+    inside: float  # share of samples inside
+    undecided: float  # share with 1/4 < |w| < 3/4, which the rays decided
+    leak: float  # mean share of rays escaping from inside samples: 0 when the surface encloses them all
+    patches: int
+    closed_patches: int
+    flipped_patches: int
+    hidden_patches: int  # open patches seen from neither side, left out of the winding number
+
+    @classmethod
+    def of(cls, signs: MeshSigns) -> "SignReport":
+        tally: SignTally = signs.tally
+        surface = signs.surface
+        return cls(
+            method=SIGN_METHOD, samples=tally.points, confidence=tally.share(tally.confident),
+            inside=tally.share(tally.inside), undecided=tally.share(tally.undecided), leak=tally.leak,
+            patches=surface.patches, closed_patches=surface.closed_patches,
+            flipped_patches=surface.flipped_patches, hidden_patches=surface.hidden_patches,
+        )
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def previous_signs(record_path: Path) -> Optional[dict]:
+    """The `sdf_signs` a shape record already holds (None if it has none or is unreadable), for records rewritten
+    without resampling."""
+    try:
+        return json.loads(Path(record_path).read_text()).get("sdf_signs")
+    except (OSError, ValueError, AttributeError):
+        return None
 
 
 def sample_mesh_sdf(
@@ -235,15 +190,27 @@ def sample_mesh_sdf(
     n_points: int,
     rng: np.random.Generator,
     min_inside_fraction: float = 0.002,
-    **sdf_kwargs,
-) -> dict[str, np.ndarray]:
-    """DeepSDF samples {"pos": [P,4], "neg": [Q,4]} of a normalised real mesh, checked to enclose volume."""
-    sdf = MeshSdf(mesh, seed=int(rng.integers(2**31)), **sdf_kwargs)
-    samples = sample_sdf(sdf, mesh, n_points, rng)
-    inside = len(samples["neg"]) / max(n_points, 1)
-    if inside < min_inside_fraction:
+    min_confidence: float = 0.5,
+    n_rays: int = 32,
+) -> tuple[dict[str, np.ndarray], SignReport]:
+    """DeepSDF samples {"pos": [P,4], "neg": [Q,4]} of a normalised real mesh, and how sure their signs are.
+
+    Raises MeshProcessingError when the mesh encloses (almost) no volume or when fewer than
+    min_confidence of the samples have a sign both tests are clear about.
+    """
+    sdf = MeshSdf(mesh, n_rays=n_rays, seed=int(rng.integers(2**31)))
+    points = sample_points(mesh, n_points, rng)
+    samples = split_by_sign(points, sdf.sdf(points))
+    report = SignReport.of(sdf.signs)
+    if report.confidence < min_confidence:
         raise MeshProcessingError(
-            f"only {inside:.2%} of SDF samples are inside (need {min_inside_fraction:.2%}): the mesh "
+            f"sign inconclusive: both tests are clear about only {report.confidence:.0%} of SDF samples (need "
+            f"{min_confidence:.0%}); {report.undecided:.0%} have a winding number between 1/4 and 3/4 and the inside "
+            f"points see {report.leak:.0%} of the sky on average, i.e. the mesh is too open to tell inside from outside"
+        )
+    if report.inside < min_inside_fraction:
+        raise MeshProcessingError(
+            f"only {report.inside:.2%} of SDF samples are inside (need {min_inside_fraction:.2%}): the mesh "
             "encloses no volume (single-sided sheets or open surfaces), so the decoder would learn no surface"
         )
-    return samples
+    return samples, report

@@ -38,7 +38,7 @@ from ushape import atomic
 from ushape.data import integrity
 from ushape.data.augment import MASK_MODES, build_transform
 from ushape.data.layout import WorldIndex
-from ushape.data.mesh_sdf import MeshProcessingError, load_mesh, normalise_mesh, sample_mesh_sdf
+from ushape.data.mesh_sdf import MeshProcessingError, load_mesh, normalise_mesh, previous_signs, sample_mesh_sdf
 
 log = logging.getLogger(__name__)
 
@@ -338,11 +338,13 @@ def process_pix3d_model(index: WorldIndex, model_id: str, source: Path) -> None:
     mesh, centre, scale = normalise_mesh(load_mesh(source))
     if not mesh_ok:
         atomic.write_bytes(index.mesh_path(model_id), trimesh.exchange.ply.export_ply(mesh, encoding="binary"))
+    signs = previous_signs(index.shape_path(model_id)) if sdf_ok else None
     if not sdf_ok:
         seed = np.random.SeedSequence([int(index.config["seed"]), *model_id.encode()])
-        samples = sample_mesh_sdf(mesh, int(index.config["samples_per_shape"]), np.random.default_rng(seed))
+        samples, report = sample_mesh_sdf(mesh, int(index.config["samples_per_shape"]), np.random.default_rng(seed))
         atomic.save_npz(index.sdf_path(model_id), **samples)
+        signs = report.as_dict()
     atomic.write_json(index.shape_path(model_id), {
         "shape_id": model_id, "category": index.category, "source": str(source),
-        "centre": centre.tolist(), "scale": float(scale),
+        "centre": centre.tolist(), "scale": float(scale), "sdf_signs": signs,
     })

@@ -4,7 +4,8 @@
                                                 shapes/, skipped.json
 
 Per model: the OBJ is loaded with its material/texture colours, normalised to DeepSDF's unit
-sphere, sampled for SDF with `ushape.data.mesh_sdf` (robust sign for real meshes), and given
+sphere, sampled for SDF with `ushape.data.mesh_sdf` (robust sign for real meshes; shapes/<id>.json
+keeps the sign report as `sdf_signs`, see the README's real-data section), and given
 views: ShapeNetRendering's images and cameras when `renderings_root` is set, otherwise our own
 R2N2-protocol renders. A model that cannot be processed is logged, listed in skipped.json with
 its reason and left out of the splits; it is not retried while the config (hence the folder)
@@ -32,13 +33,15 @@ from ushape.data.jobs import run_jobs
 from ushape.data import integrity, shapenet, shapenet_rendering
 from ushape.data.cameras import format_metadata, parse_metadata, sample_r2n2_views
 from ushape.data.layout import SPLITS, WorldIndex
-from ushape.data.mesh_sdf import MeshProcessingError, load_mesh, normalise_mesh, sample_mesh_sdf
+from ushape.data.mesh_sdf import MeshProcessingError, load_mesh, normalise_mesh, previous_signs, sample_mesh_sdf
 from ushape.data.rendering import render_views
 from ushape.data.shape_artifacts import artifact_problems, r2n2_frame
 
 log = logging.getLogger(__name__)
 
-PREPROCESS_VERSION = 2  # 2: R2N2 cameras in the layout's axes (v1 or v2), azimuth as R2N2's; alpha >= 128 masks
+# 2: R2N2 cameras in the layout's axes (v1 or v2), azimuth as R2N2's; alpha >= 128 masks
+# 3: SDF signs by winding number (issue #18); shapes/<id>.json records how sure they are (sdf_signs)
+PREPROCESS_VERSION = 3
 SKIPPED_FILE = "skipped.json"
 SDF_STREAM, VIEWS_STREAM = 1, 2
 
@@ -168,10 +171,12 @@ def process_model(job: ModelJob) -> tuple[str, Optional[str]]:
         mesh, centre, scale = normalise_mesh(load_mesh(job.source))
         if "mesh" in problems:
             atomic.write_bytes(job.index.mesh_path(job.model_id), trimesh.exchange.ply.export_ply(mesh, encoding="binary"))
+        signs = None if "sdf" in problems else previous_signs(job.index.shape_path(job.model_id))
         if "sdf" in problems:
             rng = np.random.default_rng(np.random.SeedSequence(job.seed, spawn_key=(SDF_STREAM,)))
-            samples = sample_mesh_sdf(mesh, int(job.index.config["samples_per_shape"]), rng)
+            samples, report = sample_mesh_sdf(mesh, int(job.index.config["samples_per_shape"]), rng)
             atomic.save_npz(job.index.sdf_path(job.model_id), **samples)
+            signs = report.as_dict()
         if "renders" in problems:
             write_model_views(job, mesh)
     except (MeshProcessingError, FileNotFoundError) as err:
@@ -179,7 +184,7 @@ def process_model(job: ModelJob) -> tuple[str, Optional[str]]:
     atomic.write_json(job.index.shape_path(job.model_id), {
         "shape_id": job.model_id, "category": job.index.category, "synset": job.synset, "split": job.split,
         "source": job.source, "layout": job.layout, "centre": centre.tolist(), "scale": float(scale),
-        "views": "shapenet_rendering" if job.renderings_root else "ushape",
+        "views": "shapenet_rendering" if job.renderings_root else "ushape", "sdf_signs": signs,
     })
     return job.model_id, None
 

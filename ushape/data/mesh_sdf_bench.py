@@ -1,0 +1,172 @@
+"""Measure the real-mesh SDF signs: known-answer meshes, agreement with official voxels, time per mesh.
+
+    python -m ushape.data.mesh_sdf_bench --real-root ../shared/data/real_sample \
+        [--baseline old_mesh_sdf.py] [--samples 30000] [--timing-samples 250000] [--json out.json]
+
+`--baseline` names another version of ushape/data/mesh_sdf.py (e.g. `git show <commit>:ushape/data/mesh_sdf.py
+> old.py`), measured on the same samples beside the current one. Prints markdown tables; the
+numbers measured for issue #18 are in docs/mesh_sdf_signs.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from types import ModuleType
+from typing import Any, Optional
+
+import igl
+import numpy as np
+
+from ushape.data import mesh_sdf, sign_cases
+from ushape.data.pix3d import load_voxels, voxel_to_model
+from ushape.data.sampling import sample_points
+from ushape.data.voxel_check import has_interior, read_solid_binvox, tolerant_truth
+
+AWAY = 0.01  # known-answer meshes: only samples at least this far from the surface count (unit-sphere frame)
+TIMING_CHAIR = "ShapeNetCore.v2/03001627/1a6f615e8b1b5ae4dbbc9440457e303e/models/model_normalized.obj"
+TIMING_LARGE = "pix3d/model/chair/IKEA_IVAR/model.obj"
+
+
+def load_module(path: str | Path) -> ModuleType:
+    spec = importlib.util.spec_from_file_location("baseline_mesh_sdf", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def inside_of(module: ModuleType, mesh, points: np.ndarray) -> np.ndarray:
+    """Bool [N] inside test of a mesh_sdf version, never rejecting (so every case gets a number)."""
+    if hasattr(module, "SignReport"):
+        return module.MeshSdf(mesh).inside(points)
+    return module.MeshSdf(mesh, max_ambiguous_fraction=1.0).inside(points)
+
+
+def known_answer_rows(methods: dict[str, ModuleType], n: int) -> list[dict[str, Any]]:
+    rows = []
+    for make in sign_cases.KNOWN_ANSWER_CASES + (sign_cases.open_box,):
+        case = make()
+        points = sample_points(case.mesh, n, np.random.default_rng(0))
+        vertices, faces = np.asarray(case.mesh.vertices, np.float64), np.asarray(case.mesh.faces, np.int64)
+        away = np.sqrt(igl.point_mesh_squared_distance(points, vertices, faces)[0]) >= AWAY
+        row: dict[str, Any] = {"case": case.name, "faces": len(faces), "samples away": int(away.sum())}
+        for name, module in methods.items():
+            inside = inside_of(module, case.mesh, points)
+            row[name] = float(np.mean(inside[away] == case.solid(points[away]))) if case.solid else None
+        report = mesh_sdf.MeshSdf(case.mesh)
+        report.inside(points)
+        row.update(_report_columns(mesh_sdf.SignReport.of(report.signs)))
+        rows.append(row)
+    return rows
+
+
+def real_models(root: Path) -> list[tuple[str, Path, Path]]:
+    """(name, model file, voxel file) of every ShapeNetCore.v2 and Pix3D model under root."""
+    found = [(p.parents[1].name, p, p.parent / "model_normalized.solid.binvox")
+             for p in sorted(root.glob("ShapeNetCore.v2/*/*/models/model_normalized.obj"))]
+    found += [(f"{p.parent.parent.name}/{p.parent.name}", p, p.parent / "voxel.mat")
+              for p in sorted(root.glob("pix3d/model/*/*/model.obj"))]
+    return [f for f in found if f[2].is_file()]
+
+
+def real_rows(methods: dict[str, ModuleType], root: Path, n: int) -> list[dict[str, Any]]:
+    rows = []
+    for name, model, voxels in real_models(root):
+        raw = mesh_sdf.load_mesh(model)
+        if voxels.suffix == ".mat":
+            occupancy = load_voxels(voxels)
+            index_to_model = voxel_to_model(raw, occupancy.shape[0])
+        else:
+            occupancy, index_to_model = read_solid_binvox(voxels)
+        mesh, centre, scale = mesh_sdf.normalise_mesh(raw)
+        row: dict[str, Any] = {"model": name, "faces": len(raw.faces), "solid voxels": has_interior(occupancy)}
+        for method, module in methods.items():
+            rng = np.random.default_rng(0)
+            try:
+                result = module.sample_mesh_sdf(mesh, n, rng)
+            except module.MeshProcessingError as err:
+                row[method] = None
+                row[f"{method} rejected"] = str(err)
+                continue
+            samples, report = result if isinstance(result, tuple) else (result, None)
+            rows_xyz = np.concatenate([samples["pos"], samples["neg"]]).astype(np.float64)
+            checked, truth = tolerant_truth(occupancy, index_to_model, rows_xyz[:, :3] / scale + centre)
+            row["checked"] = int(checked.sum())
+            row[method] = float(np.mean((rows_xyz[checked, 3] < 0) == truth[checked]))
+            if report is not None:
+                row.update(_report_columns(report))
+        rows.append(row)
+    return rows
+
+
+def _report_columns(report) -> dict[str, Any]:
+    return {"confidence": report.confidence, "leak": report.leak, "undecided": report.undecided,
+            "patches (closed/flipped/hidden)": f"{report.patches} ({report.closed_patches}/"
+                                               f"{report.flipped_patches}/{report.hidden_patches})"}
+
+
+def timing_rows(methods: dict[str, ModuleType], root: Path, n: int, repeats: int) -> list[dict[str, Any]]:
+    chair = mesh_sdf.normalise_mesh(mesh_sdf.load_mesh(root / TIMING_CHAIR))[0].subdivide()
+    large = mesh_sdf.normalise_mesh(mesh_sdf.load_mesh(root / TIMING_LARGE))[0]
+    for _ in range(4):
+        large = large.subdivide()
+    rows = []
+    for label, mesh in (("ShapeNet chair 1a6f615e, subdivided once", chair), ("Pix3D IKEA_IVAR, subdivided 4x", large)):
+        points = sample_points(mesh, n, np.random.default_rng(0))
+        row: dict[str, Any] = {"mesh": label, "faces": len(mesh.faces), "samples": n}
+        best = {m: np.inf for m in methods}
+        for _ in range(repeats):  # interleaved, so both see the same machine load
+            for method, module in methods.items():
+                start = time.perf_counter()
+                module.MeshSdf(mesh).sdf(points)
+                best[method] = min(best[method], time.perf_counter() - start)
+        row.update({f"{m} s": round(t, 2) for m, t in best.items()})
+        row["load average"] = os.getloadavg()[0]
+        rows.append(row)
+    return rows
+
+
+def markdown(rows: list[dict[str, Any]]) -> str:
+    keys = list(dict.fromkeys(k for row in rows for k in row))
+    cell = lambda v: "-" if v is None else f"{v:.4f}" if isinstance(v, float) else str(v)  # noqa: E731
+    lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
+    lines += ["| " + " | ".join(cell(row.get(k)) for k in keys) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def main(argv: Optional[list[str]] = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--real-root", type=Path, help="folder holding ShapeNetCore.v2/ and pix3d/model/")
+    parser.add_argument("--baseline", type=Path, help="another mesh_sdf.py to measure beside the current one")
+    parser.add_argument("--samples", type=int, default=30_000)
+    parser.add_argument("--timing-samples", type=int, default=250_000)
+    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--no-timing", action="store_true")
+    parser.add_argument("--json", type=Path, help="also write every number here")
+    args = parser.parse_args(argv)
+    methods = {"current": mesh_sdf}
+    if args.baseline:
+        methods["baseline"] = load_module(args.baseline)
+    results: dict[str, Any] = {"known answers": known_answer_rows(methods, args.samples)}
+    print(f"## Known-answer meshes (share of right signs, samples >= {AWAY} from the surface)\n")
+    print(markdown(results["known answers"]), flush=True)
+    if args.real_root:
+        results["real models"] = real_rows(methods, args.real_root, args.samples)
+        print("\n## Real models against official voxels (tolerant check)\n")
+        print(markdown(results["real models"]), flush=True)
+        if not args.no_timing:
+            results["timing"] = timing_rows(methods, args.real_root, args.timing_samples, args.repeats)
+            print(f"\n## Time per mesh, MeshSdf construction + sdf of {args.timing_samples} samples (best of {args.repeats})\n")
+            print(markdown(results["timing"]), flush=True)
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,142 @@
+"""Meshes whose inside is known by construction, modelled the ways real CAD meshes go wrong.
+
+Each case is a triangle mesh as a modeller might have saved it and the solid it stands for,
+as a union of axis-aligned boxes or a ball, so every point's right sign is computable exactly.
+The tests check `ushape.data.mesh_signs` on them and the sign benchmark measures old and new
+methods on the same meshes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Optional
+
+import numpy as np
+import trimesh
+
+Box = tuple[tuple[float, float, float], tuple[float, float, float]]  # (lower corner, upper corner)
+
+
+@dataclass(frozen=True)
+class SignCase:
+    name: str
+    mesh: trimesh.Trimesh
+    solid: Optional[Callable[[np.ndarray], np.ndarray]]  # points [N,3] -> bool [N]; None: no inside can be known
+    answer: str  # the stated right answer, in words
+
+
+def box_mesh(box: Box) -> trimesh.Trimesh:
+    lo, hi = np.asarray(box[0], float), np.asarray(box[1], float)
+    return trimesh.creation.box(extents=hi - lo, transform=trimesh.transformations.translation_matrix((lo + hi) / 2))
+
+
+def in_boxes(boxes: list[Box]) -> Callable[[np.ndarray], np.ndarray]:
+    """Bool [N] function: the point lies in at least one box."""
+    lows, highs = np.array([b[0] for b in boxes]), np.array([b[1] for b in boxes])
+
+    def solid(points: np.ndarray) -> np.ndarray:
+        p = points[:, None, :]
+        return np.any(np.all((p > lows) & (p < highs), axis=2), axis=1)
+
+    return solid
+
+
+def union_of_closed_boxes(boxes: list[Box]) -> trimesh.Trimesh:
+    return trimesh.util.concatenate([box_mesh(b) for b in boxes])
+
+
+def cabinet() -> SignCase:
+    """Four deep cubbies open at the front, every panel a closed box (as the issue's 22-part shelf unit)."""
+    t = 0.05
+    boxes = [
+        ((-0.6, -0.7, -0.5), (-0.6 + t, 0.7, 0.5)), ((0.6 - t, -0.7, -0.5), (0.6, 0.7, 0.5)),  # sides
+        ((-0.55, 0.7 - t, -0.5), (0.55, 0.7, 0.5)), ((-0.55, -0.7, -0.5), (0.55, -0.7 + t, 0.5)),  # top, bottom
+        ((-0.55, -t / 2, -0.45), (0.55, t / 2, 0.5)),  # shelf
+        ((-t / 2, -0.65, -0.45), (t / 2, 0.65, 0.5)),  # divider, crossing the shelf
+        ((-0.55, -0.65, -0.5), (0.55, 0.65, -0.45)),  # back
+    ]
+    return SignCase("cabinet with open cubbies", union_of_closed_boxes(boxes), in_boxes(boxes),
+                    "the panels are inside; the cubbies are outside however deep")
+
+
+def drawer_table() -> SignCase:
+    """A table whose drawer is a box of closed panels under the top, open at the front."""
+    boxes = [((-0.6, 0.375, -0.4), (0.6, 0.425, 0.4))]  # top
+    boxes += [((x - 0.03, -0.4, z - 0.03), (x + 0.03, 0.375, z + 0.03)) for x in (-0.55, 0.55) for z in (-0.35, 0.35)]
+    boxes += [
+        ((-0.3, 0.24, -0.3), (0.3, 0.26, 0.3)),  # drawer bottom
+        ((-0.3, 0.26, -0.3), (-0.28, 0.375, 0.3)), ((0.28, 0.26, -0.3), (0.3, 0.375, 0.3)),  # drawer sides
+        ((-0.28, 0.26, -0.3), (0.28, 0.375, -0.28)),  # drawer back
+    ]
+    return SignCase("table with a drawer open at the front", union_of_closed_boxes(boxes), in_boxes(boxes),
+                    "top, legs and drawer panels are inside; the drawer's shallow cavity is outside")
+
+
+def _box_surface_with_holes(box: Box, holes: list[Box], subdivisions: int = 3) -> trimesh.Trimesh:
+    """The box's surface (one sheet, no thickness) with the faces whose centroid lies in a hole box removed."""
+    mesh = box_mesh(box)
+    for _ in range(subdivisions):
+        mesh = mesh.subdivide()
+    cut = in_boxes(holes)(mesh.triangles_center)
+    return trimesh.Trimesh(mesh.vertices, mesh.faces[~cut], process=False)
+
+
+def open_shell_chair() -> SignCase:
+    """Seat and back each one double-walled surface (outer wall, inner wall, rim) with five holes in the rim."""
+    seat = ((-0.4, -0.05, -0.4), (0.4, 0.05, 0.4))
+    back = ((-0.4, 0.06, -0.45), (0.4, 0.86, -0.35))
+    seat_holes = [((x - 0.06, -0.1, 0.39), (x + 0.06, 0.1, 0.5)) for x in (-0.25, 0.0, 0.25)]
+    seat_holes += [((-0.5, -0.1, -0.06), (-0.39, 0.1, 0.06)), ((0.39, -0.1, -0.06), (0.5, 0.1, 0.06))]
+    back_holes = [((x - 0.06, 0.855, -0.5), (x + 0.06, 0.9, -0.3)) for x in (-0.25, 0.0, 0.25)]
+    back_holes += [((-0.5, y - 0.06, -0.5), (-0.395, y + 0.06, -0.3)) for y in (0.3, 0.6)]
+    mesh = trimesh.util.concatenate([_box_surface_with_holes(seat, seat_holes), _box_surface_with_holes(back, back_holes)])
+    return SignCase("open double-walled shell", mesh, in_boxes([seat, back]),
+                    "the space between the walls is inside: a solid seat and back whose rims were left open "
+                    "(a flood-filled voxelisation leaves them hollow; no test of the mesh can know which was meant)")
+
+
+def broken_soup(seed: int = 0) -> SignCase:
+    """Three boxes: randomly flipped faces, one inside-out, duplicated and inner faces, a non-manifold edge and fin."""
+    rng = np.random.default_rng(seed)
+    a, b, c = ((-0.5, -0.5, -0.25), (0.0, 0.0, 0.25)), ((0.0, 0.0, -0.25), (0.5, 0.5, 0.25)), ((-0.3, -0.7, -0.1), (-0.1, -0.3, 0.1))
+    box_a = box_mesh(a).subdivide()
+    faces_a = box_a.faces.copy()
+    flip = rng.random(len(faces_a)) < 0.5
+    faces_a[flip] = faces_a[flip][:, ::-1]
+    parts = [
+        trimesh.Trimesh(box_a.vertices, faces_a, process=False),
+        trimesh.Trimesh(box_mesh(b).vertices, box_mesh(b).faces[:, ::-1], process=False),  # inside-out, shares A's edge
+        box_mesh(c),  # overlaps A
+        trimesh.Trimesh(box_a.vertices, box_a.faces[:6][:, ::-1], process=False),  # faces stored twice, once per side
+        trimesh.Trimesh([[0.5, 0.5, -0.25], [0.5, 0.5, 0.25], [0.8, 0.8, 0.0]], [[0, 1, 2]], process=False),  # fin
+        trimesh.Trimesh([[-0.4, -0.4, 0.0], [-0.1, -0.4, 0.0], [-0.25, -0.1, 0.0]], [[0, 1, 2]], process=False),  # inner
+    ]
+    return SignCase("flipped and non-manifold soup", trimesh.util.concatenate(parts), in_boxes([a, b, c]),
+                    "the union of the three boxes is inside; fin and inner face change nothing")
+
+
+def sieve_sphere(seed: int = 0) -> SignCase:
+    """A sphere of radius 0.8 with 6% of its faces missing at random."""
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.8)
+    kept = np.random.default_rng(seed).random(len(sphere.faces)) > 0.06
+    return SignCase("sphere with 6% of faces missing", trimesh.Trimesh(sphere.vertices, sphere.faces[kept], process=False),
+                    lambda p: np.linalg.norm(p, axis=1) < 0.8, "the ball is inside")
+
+
+def open_box() -> SignCase:
+    """A single-sided box surface with one whole side missing: a block without its lid, or a container?
+
+    Not a known-answer case: the point of it is that no test of the mesh can know.
+    """
+    mesh = _box_surface_with_holes(((-0.5, -0.5, -0.5), (0.5, 0.5, 0.5)), [((-1, 0.45, -1), (1, 1, 1))], subdivisions=2)
+    return SignCase("box with one side missing", mesh, None,
+                    "cannot be told: a solid block missing its top, or an open container; the sign report flags it")
+
+
+def sheet() -> SignCase:
+    """One square sheet: it encloses nothing."""
+    mesh = trimesh.Trimesh([[-0.5, 0, -0.5], [0.5, 0, -0.5], [0.5, 0, 0.5], [-0.5, 0, 0.5]], [[0, 1, 2], [0, 2, 3]])
+    return SignCase("single sheet", mesh, lambda p: np.zeros(len(p), bool), "nothing is inside; rejected as enclosing no volume")
+
+
+KNOWN_ANSWER_CASES = (cabinet, drawer_table, open_shell_chair, broken_soup, sieve_sphere)
