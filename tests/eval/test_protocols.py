@@ -30,6 +30,29 @@ def test_a_shape_with_few_views_is_one_instance_with_a_warning():
     assert len(groups) == 1 and len(groups[0]) == 3
 
 
+def test_pix3d_mv_drops_shapes_short_of_a_group():
+    keys = [ViewKey("a", v) for v in range(11)] + [ViewKey("b", v) for v in range(9)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        groups = P.group_views(keys, 10, drop_short=True)
+    assert [(g[0].shape_id, len(g)) for g in groups] == [("a", 10)]
+
+
+def test_a_view_is_read_with_its_mask_or_as_the_photo(tmp_path):
+    from PIL import Image
+
+    from ushape.evaluation.views import load_view
+
+    pixels = torch.tensor([[[200, 100, 0, 255], [40, 80, 120, 0]]], dtype=torch.uint8).numpy()
+    Image.fromarray(pixels, mode="RGBA").save(tmp_path / "v.png")
+    masked, photo = load_view(tmp_path / "v.png", "gt_mask"), load_view(tmp_path / "v.png", "none")
+    assert torch.allclose(masked[:, 0, 1], torch.zeros(4))  # outside the mask: nothing (premultiplied)
+    assert torch.allclose(photo[:, 0, 1], torch.tensor([40, 80, 120, 255]) / 255.0)  # the background, opaque
+    assert torch.allclose(masked[:, 0, 0], photo[:, 0, 0])
+    with pytest.raises(ValueError, match="mask_input"):
+        load_view(tmp_path / "v.png", "seg")
+
+
 def test_view_seeds_depend_on_the_view_only():
     assert view_seed(0, "a", 1) == view_seed(0, "a", 1)
     assert len({view_seed(0, "a", 1), view_seed(0, "a", 2), view_seed(0, "b", 1), view_seed(1, "a", 1)}) == 4

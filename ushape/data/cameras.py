@@ -9,7 +9,8 @@ holds one row per view: "az el inplane dist_ratio fov".
 
 Conventions used throughout ushape:
 - World frame: the shape's normalised frame, y up. In ShapeNetCore v1's axes (the frame R2N2
-  rendered in, and the one ushape's own shapes use) a view at distance d sits at
+  rendered in; ushape's synthetic shapes, which face +z, take the same rows in their own axes)
+  a view at distance d sits at
   d (cos el cos az, sin el, +cos el sin az) from the object's centre: R2N2's Blender script
   turns its camera rig by -azimuth about Blender's up axis, so the azimuth grows from +x
   towards +z (clockwise seen from above). Checked against R2N2's real renders of a chair

@@ -1,7 +1,8 @@
 """Where every file of a cached synthetic world lives (every name is defined here, nowhere else).
 
     <root>/<category>-<hash12>/
-      config.json                          the generating config (hash12 is its hash)
+      config.json                          the generating config (hash12 is its hash); worlds whose shapes
+                                           have different numbers of views list them in views_per_shape
       splits/train.json, val.json, test.json   JSON lists of shape ids
       meshes/<shape_id>.ply                normalised watertight mesh
       sdf/<shape_id>.npz                   pos [P,4], neg [Q,4] float32 (DeepSDF layout)
@@ -87,8 +88,12 @@ class WorldIndex:
     def image_path(self, shape_id: str, view: int) -> Path:
         return self.render_dir(shape_id) / image_name(view)
 
+    def view_count(self, shape_id: str) -> int:
+        """Views of one shape: n_views, unless config.json lists them per shape (Pix3D: one per photo)."""
+        return int(self.config.get("views_per_shape", {}).get(shape_id, self.n_views))
+
     def image_paths(self, shape_id: str) -> list[Path]:
-        return [self.image_path(shape_id, v) for v in range(self.n_views)]
+        return [self.image_path(shape_id, v) for v in range(self.view_count(shape_id))]
 
     def metadata_path(self, shape_id: str) -> Path:
         return self.render_dir(shape_id) / METADATA_FILE

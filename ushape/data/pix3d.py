@@ -8,7 +8,16 @@ Images are cropped to a square around their annotated bbox (plus a margin) and r
 premultiplied RGBA, alpha = the ground-truth mask (`mask_mode="gt_mask"`, background removed)
 or 1 (`"none"`, the photo as is); the augment module's transforms composite them like renders.
 Pix3D-MV (the paper's multi-view set: 149 chair instances, 1490 images) groups the images of
-each model, sorted by file name, into chunks of `group_size` and drops the remainder.
+each model, sorted by file name, into chunks of `group_size` and drops the remainder. It takes
+the images of Pix3D's official evaluation list, i.e. those neither truncated, occluded nor
+slightly occluded (the filters `Pix3DWorld` and conf/data/pix3d.yaml apply by default); a model
+is the json's `model` file, so each per-image variant of a swivel chair is a model of its own.
+
+As an evaluation world (`Pix3DWorld.build()`, what `eval.py data=pix3d` reads), every model of
+the test split has one view per filtered photo, in file-name order: renders/<model>/NN.png is
+the photo's square crop, RGB outside the photo white, alpha = the ground-truth mask. Evaluation
+reads it with the mask (Table 1's "w/ GT Mask" rows, and Pix3D-MV) and without ("w/o Mask": the
+RGB as is, background included); config.json lists the views per model.
 
 voxel.mat frame, found by matching occupied voxels to the model's surface on the sample
 models (and checked in tests): the grid spans the model's longest bounding-box side about the
@@ -19,6 +28,7 @@ gives that map; the voxels hold filled solids, so they also check our SDF signs.
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import logging
 from collections import defaultdict
@@ -45,7 +55,8 @@ log = logging.getLogger(__name__)
 ANNOTATIONS_FILE = "pix3d.json"
 CATEGORY_NAMES = {"chairs": "chair", "tables": "table"}
 VOXEL_AXES = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # rows: model axis of voxel i, j, k
-PREPROCESS_VERSION = 1
+PREPROCESS_VERSION = 2  # 2: renders/ holds the filtered photos' crops (one view per photo)
+MASK_INPUTS = ("gt_mask", "none")  # how evaluation may read the views: with the GT mask, or the photo as is
 SKIPPED_FILE = "skipped.json"
 EXPECTED_LAYOUT = __doc__.split("\n\n")[1]
 
@@ -151,9 +162,25 @@ def square_box(bbox: Sequence[float], margin: float = 0.1) -> tuple[float, float
     return cx - half, cy - half, cx + half, cy + half
 
 
-def crop_resize(image: Image.Image, box: Sequence[float], size: int) -> Image.Image:
-    """Crop `box` (may leave the image: the outside is transparent/zero) and resize to size x size."""
-    return image.transform((size, size), Image.EXTENT, tuple(box), resample=Image.BILINEAR)
+def crop_resize(image: Image.Image, box: Sequence[float], size: int, fill: Any = None) -> Image.Image:
+    """Crop `box` (may leave the image: the outside is `fill`, default transparent/zero) and resize to size x size."""
+    return image.transform((size, size), Image.EXTENT, tuple(box), resample=Image.BILINEAR, fillcolor=fill)
+
+
+def view_rgba(root: Path, entry: Pix3DEntry, size: int, margin: float) -> np.ndarray:
+    """RGBA uint8 [S,S,4] of one photo as a world view: its bbox crop, white outside the photo, alpha = GT mask."""
+    img_path, mask_path = root / entry.img, root / entry.mask
+    for path in (img_path, mask_path):
+        if not path.is_file():
+            raise FileNotFoundError(f"{path} is missing. Expected Pix3D's layout:\n{EXPECTED_LAYOUT}")
+    with Image.open(img_path) as img, Image.open(mask_path) as msk:
+        rgb, mask = img.convert("RGB"), msk.convert("L")
+    if mask.size != rgb.size:
+        raise ValueError(f"{mask_path} is {mask.size}, but its image {img_path} is {rgb.size}")
+    box = square_box(entry.bbox, margin)
+    crop = crop_resize(rgb, box, size, fill=(255, 255, 255))
+    crop.putalpha(crop_resize(mask, box, size, fill=0))
+    return np.asarray(crop, dtype=np.uint8)
 
 
 def load_crop(root: Path, entry: Pix3DEntry, size: int, margin: float, mask_mode: str) -> tuple[Tensor, Tensor]:
@@ -260,8 +287,11 @@ class Pix3DWorld:
     """Pix3D's models of one category preprocessed into the world layout (all in the test split).
 
     meshes/ and sdf/ as for ShapeNet, shapes/<id>.json with the normalisation (centre, scale)
-    that maps Pix3D's model frame (where rot_mat/trans_mat and voxel.mat live) to ours; no renders.
-    `images(...)` gives the photos of the same category for the evaluation protocols.
+    that maps Pix3D's model frame (where rot_mat/trans_mat and voxel.mat live) to ours and the
+    photos behind its views, renders/<id>/NN.png one cropped photo per view (see the module doc).
+    Pix3D's models share ShapeNetCore.v2's axes (y up, backs towards +z), so encoders trained on
+    ShapeNet v2 meshes are scored in their own frame. `images(...)` gives the same photos as a
+    Dataset with on-the-fly crops.
     """
 
     def __init__(
@@ -271,23 +301,27 @@ class Pix3DWorld:
         cache_root: str,
         samples_per_shape: int = 250_000,
         seed: int = 0,
-        image_size: int = 137,
+        image_size: int = 224,
         margin: float = 0.1,
         mask_mode: str = "gt_mask",
         group_size: int = 10,
-        drop_truncated: bool = False,
-        drop_occluded: bool = False,
-        drop_slightly_occluded: bool = False,
+        drop_truncated: bool = True,
+        drop_occluded: bool = True,
+        drop_slightly_occluded: bool = True,
     ) -> None:
         self.root = Path(root).expanduser().resolve()
         self.category = pix3d_category(category)
-        self.filters = dict(drop_truncated=drop_truncated, drop_occluded=drop_occluded,
-                            drop_slightly_occluded=drop_slightly_occluded)
+        self.filters = dict(drop_truncated=bool(drop_truncated), drop_occluded=bool(drop_occluded),
+                            drop_slightly_occluded=bool(drop_slightly_occluded))
         self.image_options = dict(image_size=image_size, margin=margin, mask_mode=mask_mode, group_size=group_size)
         self.config = {
             "dataset": "pix3d", "category": self.category, "root": str(self.root),
-            "samples_per_shape": int(samples_per_shape), "seed": int(seed), "n_views": 0,
-            "image_size": int(image_size), "preprocess_version": PREPROCESS_VERSION,
+            "samples_per_shape": int(samples_per_shape), "seed": int(seed),
+            "image_size": int(image_size), "margin": float(margin), **self.filters,
+            "preprocess_version": PREPROCESS_VERSION,
+            # Read by the evaluation: Pix3D-MV drops a model's last images short of a group, and
+            # Table 1 has rows with and without the ground-truth mask.
+            "drop_short_instances": True, "mask_inputs": list(MASK_INPUTS),
         }
         self.cache_root = Path(cache_root).expanduser()
 
@@ -301,32 +335,58 @@ class Pix3DWorld:
         entries = load_annotations(self.root, self.category, **self.filters)
         return {e.model_id: self.root / e.model for e in sorted(entries, key=lambda e: e.model_id)}
 
+    def model_photos(self) -> dict[str, list[Pix3DEntry]]:
+        """model id -> its filtered photos in file-name order (the model's views, as Pix3D-MV orders them)."""
+        by_model: dict[str, list[Pix3DEntry]] = defaultdict(list)
+        for entry in load_annotations(self.root, self.category, **self.filters):
+            by_model[entry.model_id].append(entry)
+        return {m: sorted(entries, key=lambda e: e.img) for m, entries in sorted(by_model.items())}
+
     def build(self) -> WorldIndex:
-        """Normalise and sample every model of the category that is missing (idempotent); skip bad ones."""
+        """Normalise, sample and crop the views of every model of the category that is missing (idempotent);
+        skip models whose mesh or photos cannot be read."""
         root = self.directory
-        atomic.write_json(root / "config.json", self.config)
+        photos = self.model_photos()
         index = WorldIndex(root=root, category=self.category, splits={}, config=self.config)
         skipped: dict[str, str] = {}
-        models = self.model_files()
-        for model_id, source in models.items():
+        for model_id, entries in photos.items():
             try:
-                process_pix3d_model(index, model_id, source)
-            except MeshProcessingError as err:
+                process_pix3d_model(index, model_id, self.root / entries[0].model)
+                write_pix3d_views(index, model_id, self.root, entries, float(self.config["margin"]))
+            except (MeshProcessingError, FileNotFoundError, ValueError) as err:
                 log.warning("skipping Pix3D model %s: %s", model_id, err)
-                skipped[model_id] = str(err)
-        ids = sorted(set(models) - set(skipped))
+                skipped[model_id] = f"{type(err).__name__}: {err}"
+        ids = sorted(set(photos) - set(skipped))
         if not ids:
             raise ValueError(f"no usable Pix3D {self.category} model under {self.root} ({len(skipped)} skipped)")
+        views = {m: len(photos[m]) for m in ids}
+        atomic.write_json(root / "config.json", {**self.config, "n_views": max(views.values()),
+                                                 "views_per_shape": views})
         atomic.write_json(root / SKIPPED_FILE, skipped)
         for split, split_ids in (("train", []), ("val", []), ("test", ids)):
             atomic.write_json(index.split_path(split), split_ids)
-        (root / "renders").mkdir(exist_ok=True)
         return WorldIndex.load(root)
 
     def images(self, multiview: bool = False, transform: Optional[Callable[..., Tensor]] = None) -> Pix3DImages:
         """The category's cropped photos (Pix3D-MV groups with multiview=True)."""
         return Pix3DImages(self.root, self.category, multiview=multiview, transform=transform,
                            **self.image_options, **self.filters)
+
+
+def write_pix3d_views(index: WorldIndex, model_id: str, root: Path, entries: Sequence[Pix3DEntry],
+                      margin: float) -> None:
+    """renders/<model>/NN.png, one cropped photo per entry, unless already there; the photos go into the record."""
+    size = int(index.config["image_size"])
+    for view, entry in enumerate(entries):
+        path = index.image_path(model_id, view)
+        if integrity.check_png(path, (size, size)) is not None:
+            buffer = io.BytesIO()
+            Image.fromarray(view_rgba(root, entry, size, margin), mode="RGBA").save(buffer, format="PNG")
+            atomic.write_bytes(path, buffer.getvalue())
+    record = json.loads(index.shape_path(model_id).read_text())
+    images = [e.img for e in entries]
+    if record.get("images") != images:
+        atomic.write_json(index.shape_path(model_id), {**record, "images": images})
 
 
 def process_pix3d_model(index: WorldIndex, model_id: str, source: Path) -> None:

@@ -53,6 +53,20 @@ def default_out_dir(runs: list[Path]) -> Path:
     return home / "eval" / time.strftime("%Y-%m-%d_%H-%M-%S")
 
 
+def evaluated_world(cfg: DictConfig) -> str | None:
+    """The world folder to evaluate on: `world=<folder>`, or the `data` group's world built (or found in
+    its cache) here, e.g. `data=pix3d data.root=...`; None: each run's own world (its run.json)."""
+    if cfg.get("data") is None:
+        return cfg.get("world")
+    if cfg.get("world"):
+        raise ValueError("give the evaluated world either as world=<folder> or as data=<group>, not both")
+    started = time.time()
+    world = instantiate(cfg.data).build()
+    log.info("evaluation world ready in %.1f s: %s (test %d shapes)", time.time() - started, world.root,
+             len(world.shape_ids("test")))
+    return str(world.root)
+
+
 def run_eval(cfg: DictConfig) -> float | None:
     """Evaluate (or gather); returns the configured setting's mean multi-view IoU (what a sweeper maximises)."""
     if cfg.get("gather"):
@@ -66,9 +80,10 @@ def run_eval(cfg: DictConfig) -> float | None:
     given = cfg.get("runs") or cfg.get("sweep")
     runs = resolve_runs(cfg.get("runs"), cfg.get("sweep"), "." if given else cfg.paths.root_dir)
     out_dir = Path(cfg.out_dir) if cfg.get("out_dir") else default_out_dir(runs)
+    world_dir = evaluated_world(cfg)
     log.info("evaluating %d run(s) into %s: %s", len(runs), out_dir, ", ".join(map(str, runs)))
     result = evaluate_runs(runs, settings, Path(cfg.cache_dir) if cfg.get("cache_dir") else None,
-                           setting=configured_setting(cfg), world_dir=cfg.get("world"),
+                           setting=configured_setting(cfg), world_dir=world_dir,
                            showcase_dir=out_dir if settings.protocols else None,
                            temperature=bool(cfg.get("temperature", False)))
     paths = write_results(result, out_dir, tensorboard=cfg.tensorboard)

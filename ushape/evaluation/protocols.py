@@ -42,11 +42,11 @@ def encoder_label(loss: str) -> str:
     return {"es": "Ours", "nll": "Ours-NLL", "l2": "FroDO*"}.get(loss, loss)
 
 
-def group_views(keys: Sequence[ViewKey], group_size: int = GROUP_SIZE) -> list[list[ViewKey]]:
+def group_views(keys: Sequence[ViewKey], group_size: int = GROUP_SIZE, drop_short: bool = False) -> list[list[ViewKey]]:
     """Each shape's views in consecutive instances of group_size; a short tail is dropped.
 
     A shape with fewer than group_size views becomes one smaller instance (with a warning), so a
-    small world still has a multi-view protocol.
+    small world still has a multi-view protocol; with drop_short it has none (Pix3D-MV's rule).
     """
     if group_size < 1:
         raise ValueError(f"group_size must be >= 1 view per instance, got {group_size}")
@@ -55,6 +55,8 @@ def group_views(keys: Sequence[ViewKey], group_size: int = GROUP_SIZE) -> list[l
         by_shape.setdefault(key.shape_id, []).append(key)
     groups = []
     for shape_id, views in by_shape.items():
+        if len(views) < group_size and drop_short:
+            continue
         if len(views) < group_size:
             warnings.warn(f"shape {shape_id} has {len(views)} views, fewer than group_size={group_size}: "
                           "fusing all of them as one instance", stacklevel=2)

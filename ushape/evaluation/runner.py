@@ -2,26 +2,37 @@
 
 Every encoder of the evaluation is scored on the same test views with the same crops, so ES, NLL
 and L2 (FroDO*) runs land side by side in one set of tables.
+
+The world evaluated may be another than the one the encoders trained on (`eval.py data=pix3d`:
+real photos for encoders trained on ShapeNet). Its test shapes then have no stage-1 codes, so the
+decoder's codes for them (the decoder-ceiling row, the latent-space scores) are latent-optimised
+against it once, as stage 1 made its own val/test codes, and cached. A world that lists several
+`mask_inputs` (Pix3D) evaluates each encoder once per input: every protocol with the first, the
+single-view protocol (Table 1's extra rows) with the others.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
+import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from ushape.data.layout import WorldIndex
-from ushape.decoder.artifacts import codes_file, load_codes
+from ushape.data.sdf_dataset import SDFSamplesDataset
+from ushape.decoder.artifacts import CodeTable, codes_file, load_codes, save_codes
+from ushape.decoder.latent_optim import optimise_codes
 from ushape.evaluation import protocols as P
 from ushape.evaluation.locality import has_cameras, locality_records, summarise_locality
 from ushape.evaluation.reconstruct import Reconstructor
 from ushape.evaluation.showcase import save_showcase
 from ushape.evaluation.uncertainty_protocol import (curves_to_json, decoder_dir_of, error_tracking_row, latent_rows,
                                                     sdf_rows)
-from ushape.evaluation.views import encode_views, test_views
+from ushape.evaluation.views import MASK_INPUTS, encode_views, test_views
 
 log = logging.getLogger(__name__)
 
@@ -31,6 +42,8 @@ RESULT_ROW = "eval_row.json"
 # The row lists every encoder contributes to an evaluation's result (concatenated over encoders).
 ROW_KEYS = ("records", "uncertainty", "error_tracking", "locality", "locality_views", "rows")
 RESULTS = "results.json"
+# How a mask input shows in an encoder's name and table label (Table 1: "Ours w/ GT Mask", "Ours w/o Mask").
+MASK_VARIANTS = {"gt_mask": ("", "w/ GT Mask"), "none": ("-nomask", "w/o Mask")}
 
 
 @dataclass
@@ -56,6 +69,7 @@ class Settings:
     locality_views: int | None = None
     max_shapes: int | None = None
     showcase_shapes: int = 2
+    code_iterations: int = 800
     seed: int = 0
     protocols: Sequence[str] = PROTOCOLS
 
@@ -75,6 +89,8 @@ class EncoderRun:
     reconstructor: Reconstructor
     codes_dir: Path
     keys: list = field(default_factory=list)
+    mask_input: str = "gt_mask"
+    only: tuple[str, ...] | None = None  # the protocols this variant runs (None: all asked for)
 
 
 def loss_name(predictor) -> str:
@@ -113,47 +129,91 @@ def load_encoder(run_dir: str | Path, settings: Settings, cache_dir: Path | None
     return EncoderRun(spec, predictor, world, reconstructor, decoder_dir, test_views(world, settings.split, ids))
 
 
+def mask_variants(run: EncoderRun) -> list[EncoderRun]:
+    """The run once per mask input its world lists: the first keeps the encoder's name and runs every
+    protocol; the others run the single-view protocol under their own name. Labels say which is which
+    when there are several."""
+    inputs = list(run.world.config.get("mask_inputs", ["gt_mask"]))
+    unknown = [m for m in inputs if m not in MASK_INPUTS]
+    if unknown or not inputs:
+        raise ValueError(f"{run.world.root}: mask_inputs {inputs} must be some of {MASK_INPUTS}")
+    if len(inputs) == 1:
+        return [replace(run, mask_input=inputs[0])]
+    variants = []
+    for i, mask_input in enumerate(inputs):
+        suffix, label = MASK_VARIANTS[mask_input]
+        spec = P.EncoderSpec(run.spec.name + ("" if i == 0 else suffix or f"-{mask_input}"),
+                             f"{run.spec.label} {label}", run.spec.probabilistic)
+        variants.append(replace(run, spec=spec, mask_input=mask_input, only=None if i == 0 else ("single_view",)))
+    return variants
+
+
+def split_codes(run: EncoderRun, settings: Settings, cache_dir: Path | None) -> CodeTable:
+    """The decoder's codes of the evaluated split: stage 1's own, or for shapes the decoder never saw
+    (another world), latent-optimised against it (DeepSDF's reconstruction, as stage 1 did for val/test)."""
+    table = load_codes(run.codes_dir / codes_file(settings.split))
+    ids = run.world.shape_ids(settings.split)
+    if set(ids) <= set(table.shape_ids):
+        return table
+    key = hashlib.sha1(f"{run.reconstructor.decoder_tag}|{run.world.root.resolve()}|{settings.split}|"
+                       f"{settings.code_iterations}".encode()).hexdigest()[:16]
+    cache = Path(cache_dir) / f"codes_{key}.pt" if cache_dir is not None else None
+    if cache is not None and cache.is_file():
+        return load_codes(cache)
+    log.info("latent-optimising the codes of %d %s shapes of %s against %s (%d iterations)", len(ids),
+             settings.split, run.world.root, run.codes_dir, settings.code_iterations)
+    shapes = SDFSamplesDataset(run.world.root, settings.split, samples_per_shape=2)  # optimise_codes draws its own
+    codes = optimise_codes(run.predictor.decoder, shapes, iterations=settings.code_iterations,
+                           lr_drop_at=settings.code_iterations // 2, seed=settings.seed)
+    table = CodeTable(list(shapes.shape_ids), codes.detach().cpu())
+    if cache is not None:
+        save_codes(cache, table)
+    return table
+
+
 def evaluate_encoder(run: EncoderRun, settings: Settings, cache_dir: Path | None,
                      setting: tuple[Callable, str, float] | None = None) -> dict[str, list]:
     """Records of every protocol asked for, the uncertainty rows and curves, and the configured setting's row."""
     out: dict[str, Any] = {**{key: [] for key in ROW_KEYS}, "curves": {}}
-    encode = lambda scale: encode_views(run.predictor, run.world, run.keys, scale, settings.seed, cache_dir)  # noqa: E731
-    groups = P.group_views(run.keys, settings.group_size)
+    protocols = [p for p in settings.protocols if run.only is None or p in run.only]
+    encode = lambda scale: encode_views(run.predictor, run.world, run.keys, scale, settings.seed, cache_dir,  # noqa: E731
+                                        mask_input=run.mask_input)
+    groups = P.group_views(run.keys, settings.group_size, drop_short=bool(run.world.config.get("drop_short_instances")))
     rec = run.reconstructor
-    if "single_view" in settings.protocols or "corrupted" in settings.protocols:
-        scales = [1.0] if "corrupted" not in settings.protocols else list(dict.fromkeys([1.0, *settings.single_view_scales]))
+    if "single_view" in protocols or "corrupted" in protocols:
+        scales = [1.0] if "corrupted" not in protocols else list(dict.fromkeys([1.0, *settings.single_view_scales]))
         for scale in scales:
             encodings = encode(scale).first_views(settings.single_view_views)
             out["records"] += P.single_view_records(run.spec, encodings, rec, scale, emd=scale == 1.0)
-    if "multi_view" in settings.protocols:
+    if "multi_view" in protocols:
         methods = P.fusion_methods(run.spec.probabilistic, range(1, settings.group_size))
         out["records"] += P.multi_view_records(run.spec, encode(1.0), groups, methods, rec, 1.0)
-    if "corrupted" in settings.protocols:
+    if "corrupted" in protocols:
         methods = P.fusion_methods(run.spec.probabilistic, [settings.table4_k])
         for scale in dict.fromkeys([*settings.corrupted_scales, *settings.single_view_scales]):
-            if scale != 1.0 or "multi_view" not in settings.protocols:
+            if scale != 1.0 or "multi_view" not in protocols:
                 out["records"] += P.multi_view_records(run.spec, encode(scale), groups, methods, rec, scale)
-    if "uncertainty" in settings.protocols:
+    if "uncertainty" in protocols:
         encodings = encode(1.0)
-        codes = load_codes(run.codes_dir / codes_file(settings.split))
+        codes = split_codes(run, settings, cache_dir)
         rows, latent_curves = latent_rows(run.spec, encodings, codes, settings.calibration_levels)
         sdf, sdf_curves = sdf_rows(run.spec, encodings, run.predictor.decoder, run.world, settings.sdf_points,
                                    settings.mc_samples, settings.sdf_clamp, settings.sdf_views,
                                    settings.calibration_levels)
         out["uncertainty"] = rows + sdf
-        scales = [1.0] + (list(settings.single_view_scales) if "corrupted" in settings.protocols else [])
+        scales = [1.0] + (list(settings.single_view_scales) if "corrupted" in protocols else [])
         out["error_tracking"] = [error_tracking_row(run.spec, encode(s), codes, s) for s in dict.fromkeys(scales)]
         out["curves"] = {"latent": curves_to_json(latent_curves), "sdf": curves_to_json(sdf_curves)}
-    if "locality" in settings.protocols and not has_cameras(run.world, [k.shape_id for k in run.keys]):
+    if "locality" in protocols and not has_cameras(run.world, [k.shape_id for k in run.keys]):
         log.warning("Table L skipped: the test renders of %s have no cameras (views.npz), so which parts a "
                     "view hides or crops away is unknown", run.world.root)
-    elif "locality" in settings.protocols:
+    elif "locality" in protocols:
         scale = settings.locality_scale
         out["locality_views"] = locality_records(run.spec, encode(1.0), encode(scale), run.predictor.decoder,
                                                  run.world, scale, settings.seed, settings.locality_points,
                                                  settings.locality_views)
         out["locality"] = summarise_locality(out["locality_views"])
-    if setting is not None:
+    if setting is not None and run.only is None:
         out["rows"].append(setting_row(run, settings, groups, encode, *setting))
     return out
 
@@ -164,8 +224,11 @@ def setting_row(run: EncoderRun, settings: Settings, groups, encode, fuse: Calla
     encodings = encode(min_scale)
     single = P.summarise(P.single_view_records(run.spec, encodings.first_views(settings.single_view_views),
                                                run.reconstructor, min_scale))[0]
-    multi = P.summarise(P.multi_view_records(run.spec, encodings, groups, {method: fuse}, run.reconstructor,
-                                             min_scale, quiet=False))[0]
+    fused = P.multi_view_records(run.spec, encodings, groups, {method: fuse}, run.reconstructor, min_scale, quiet=False)
+    if not fused:
+        log.warning("no multi-view instance in %s (every shape has fewer than %d views): the row's multi-view "
+                    "cells are empty", run.world.root, settings.group_size)
+    multi = P.summarise(fused)[0] if fused else {"iou": math.nan, "cd": math.nan, "n": 0}
     return {"encoder": run.spec.name, "label": run.spec.label, "fusion": method, "min_scale": float(min_scale),
             "group_size": settings.group_size, "single_view_iou": single["iou"], "single_view_cd": single["cd"],
             "multi_view_iou": multi["iou"], "multi_view_cd": multi["cd"], "n_views": single["n"],
@@ -180,8 +243,9 @@ def evaluate_runs(run_dirs: Sequence[str | Path], settings: Settings, cache_dir:
         raise ValueError("no runs to evaluate: pass runs=[<run folder>, ...] or sweep=<multirun folder>")
     taken: set[str] = set()
     runs = [load_encoder(run_dir, settings, cache_dir, taken, world_dir, temperature) for run_dir in run_dirs]
-    result = evaluate_all(runs, settings, cache_dir, setting, showcase_dir)
-    for run, run_dir in zip(runs, run_dirs):
+    variants = [(variant, run_dir) for run, run_dir in zip(runs, run_dirs) for variant in mask_variants(run)]
+    result = evaluate_all([v for v, _ in variants], settings, cache_dir, setting, showcase_dir)
+    for run, run_dir in variants:
         result["runs"][run.spec.name]["run_dir"] = str(run_dir)
     return result
 
@@ -204,21 +268,22 @@ def evaluate_all(runs: Sequence[EncoderRun], settings: Settings, cache_dir: Path
             result["curves"][space].update(curves)
         result["runs"][run.spec.name] = {"checkpoint": str(run.predictor.checkpoint), "world": str(run.world.root),
                                          "label": run.spec.label}
-        if showcase_dir is not None and settings.showcase_shapes > 0:
-            encodings = encode_views(run.predictor, run.world, run.keys, 1.0, settings.seed, cache_dir)
+        if showcase_dir is not None and settings.showcase_shapes > 0 and run.only is None:
+            encodings = encode_views(run.predictor, run.world, run.keys, 1.0, settings.seed, cache_dir,
+                                     mask_input=run.mask_input)
             save_showcase(run, encodings, showcase_dir, settings.group_size, settings.showcase_shapes,
                           settings.resolution, settings.mc_samples)
     if runs and "single_view" in settings.protocols:
-        result["records"] += reference_rows(runs[0], settings)
+        result["records"] += reference_rows(runs[0], settings, cache_dir)
     result["summary"] = P.summarise(result["records"])
     result["settings"] = {k: (list(v) if isinstance(v, (tuple, range)) else v) for k, v in vars(settings).items()}
     result["seconds"] = round(time.time() - started, 1)
     return result
 
 
-def reference_rows(run: EncoderRun, settings: Settings) -> list[dict]:
+def reference_rows(run: EncoderRun, settings: Settings, cache_dir: Path | None = None) -> list[dict]:
     """Table 1's reference rows from the first run's decoder: the test shapes' own codes and the mean code."""
-    codes = load_codes(run.codes_dir / codes_file(settings.split))
+    codes = split_codes(run, settings, cache_dir)
     train = load_codes(run.codes_dir / codes_file("train"))
     shape_ids = list(dict.fromkeys(k.shape_id for k in run.keys))
     return P.reference_records(codes, train, shape_ids, run.reconstructor)

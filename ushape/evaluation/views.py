@@ -4,6 +4,9 @@ The corrupted-views protocol (the paper's Tables 4-5) crops every input to a ran
 [min_scale, 1] and resizes it back, exactly as the training augmentation does. Each view's crop
 comes from its own generator, seeded by (seed, shape id, view), so a view is cropped the same way
 in every run, by every encoder, whatever else is evaluated.
+
+A view is read with its mask (`mask_input="gt_mask"`: the alpha the encoder composites as it was
+trained to) or as a photo (`"none"`: alpha ignored, the RGB background kept; Pix3D's "w/o Mask" rows).
 """
 
 from __future__ import annotations
@@ -14,13 +17,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
+import numpy as np
 import torch
+from PIL import Image
 from torch import Tensor
 from tqdm.auto import tqdm
 
 from ushape import atomic
 from ushape.data.augment import CompositeBackground, Compose, RandomResizedCrop, load_rgba
 from ushape.data.layout import WorldIndex
+
+MASK_INPUTS = ("gt_mask", "none")
 
 
 @dataclass(frozen=True)
@@ -49,7 +56,19 @@ def test_views(world: WorldIndex, split: str = "test", shape_ids: Sequence[str] 
     ids = world.shape_ids(split) if shape_ids is None else list(shape_ids)
     if not ids:
         raise ValueError(f"the '{split}' split of {world.root} is empty: nothing to evaluate")
-    return [ViewKey(s, v) for s in ids for v in range(world.n_views)]
+    return [ViewKey(s, v) for s in ids for v in range(world.view_count(s))]
+
+
+def load_view(path: Path, mask_input: str = "gt_mask") -> Tensor:
+    """Premultiplied RGBA [4, H, W] of a view: its own alpha (gt_mask), or opaque (none: the photo as is)."""
+    if mask_input not in MASK_INPUTS:
+        raise ValueError(f"mask_input must be one of {MASK_INPUTS}, got {mask_input!r}")
+    rgba = load_rgba(path)
+    if mask_input == "none":
+        with Image.open(path) as image:
+            rgb = np.asarray(image.convert("RGB"), dtype=np.float32) / 255.0
+        rgba = torch.cat([torch.from_numpy(rgb).permute(2, 0, 1), torch.ones_like(rgba[:1])])
+    return rgba
 
 
 @dataclass(frozen=True)
@@ -86,13 +105,14 @@ def encoder_tag(predictor) -> str:
 
 
 def encode_views(predictor, world: WorldIndex, keys: Sequence[ViewKey], min_scale: float, seed: int = 0,
-                 cache_dir: Path | None = None, batch_size: int = 32) -> Encodings:
+                 cache_dir: Path | None = None, batch_size: int = 32, mask_input: str = "gt_mask") -> Encodings:
     """Encode every view (cropped to min_scale) with `predictor.encode`; reuse the cache file when present."""
     keys = list(keys)
     cache = None
     if cache_dir is not None:
         listing = hashlib.sha1("|".join(f"{k.shape_id}/{k.view}" for k in keys).encode()).hexdigest()[:12]
-        cache = Path(cache_dir) / f"enc_{encoder_tag(predictor)}_{min_scale:g}_{seed}_{listing}.pt"
+        read = "" if mask_input == "gt_mask" else f"_{mask_input}"
+        cache = Path(cache_dir) / f"enc_{encoder_tag(predictor)}_{min_scale:g}_{seed}_{listing}{read}.pt"
         if cache.is_file():
             blob = torch.load(cache, map_location="cpu", weights_only=False)
             return Encodings(keys, blob["mu"], blob["var"])
@@ -100,7 +120,7 @@ def encode_views(predictor, world: WorldIndex, keys: Sequence[ViewKey], min_scal
     for start in tqdm(range(0, len(keys), batch_size), desc=f"encode (min_scale {min_scale:g})", leave=False):
         batch = keys[start : start + batch_size]
         images = torch.stack([
-            corrupted_view(load_rgba(world.image_path(k.shape_id, k.view)), predictor.image_size, min_scale,
+            corrupted_view(load_view(world.image_path(k.shape_id, k.view), mask_input), predictor.image_size, min_scale,
                            view_seed(seed, k.shape_id, k.view), predictor.mask_mode, predictor.background_value)
             for k in batch
         ])
