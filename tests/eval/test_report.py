@@ -97,11 +97,18 @@ def test_runs_are_resolved_from_folders_sweeps_or_the_newest(tmp_path):
 def test_error_tracking_table_has_a_row_per_probabilistic_encoder_and_crop(evaluated_dir):
     result = load_results(evaluated_dir)
     table = tables.table_error_tracking(result["error_tracking"])
-    scales = sorted({r[1] for r in table.rows})
-    assert scales == sorted(set(result["settings"]["single_view_scales"]) | {1.0})
+    crops = set(result["settings"]["single_view_scales"]) - {1.0}
+    pooled = {f"1 & {s:g}" for s in crops}
+    assert {r[1] for r in table.rows} == crops | {1.0} | pooled
     assert {r[0] for r in table.rows} == {"Ours", "Ours-NLL", "FroDO*"}
-    assert all(-1 <= r[4] <= 1 for r in table.rows if r[0] != "FroDO*")
-    assert all(r[4] is None for r in table.rows if r[0] == "FroDO*")  # NaN -> null in results.json
+    assert all(-1 <= r[6] <= 1 for r in table.rows if r[0] != "FroDO*")
+    assert all(r[6] is None for r in table.rows if r[0] == "FroDO*")  # NaN -> null in results.json
+    # Shape accuracy beside the latent error; a pooled row counts the clean and the cropped views.
+    assert all(0 <= r[3] <= 1 and r[4] > 0 for r in table.rows)
+    single = {(r[0], r[1]): r for r in table.rows}
+    for label in ("Ours", "FroDO*"):
+        for s in crops:
+            assert single[(label, f"1 & {s:g}")][7] == single[(label, 1.0)][7] + single[(label, s)][7]
     assert "does the predicted variance track the error" in (evaluated_dir / "tables.md").read_text()
 
 

@@ -31,7 +31,7 @@ from ushape.evaluation.locality import has_cameras, locality_records, summarise_
 from ushape.evaluation.reconstruct import Reconstructor
 from ushape.evaluation.showcase import save_showcase
 from ushape.evaluation.uncertainty_protocol import (curves_to_json, decoder_dir_of, error_tracking_row, latent_rows,
-                                                    sdf_rows)
+                                                    pooled_error_tracking_row, sdf_rows, with_shape_accuracy)
 from ushape.evaluation.views import MASK_INPUTS, encode_views, test_views
 
 log = logging.getLogger(__name__)
@@ -202,7 +202,9 @@ def evaluate_encoder(run: EncoderRun, settings: Settings, cache_dir: Path | None
                                    settings.calibration_levels)
         out["uncertainty"] = rows + sdf
         scales = [1.0] + (list(settings.single_view_scales) if "corrupted" in protocols else [])
-        out["error_tracking"] = [error_tracking_row(run.spec, encode(s), codes, s) for s in dict.fromkeys(scales)]
+        tracking = [error_tracking_row(run.spec, encode(s), codes, s) for s in dict.fromkeys(scales)]
+        tracking += [pooled_error_tracking_row(run.spec, encode(1.0), encode(s), codes, s) for s in scales if s != 1.0]
+        out["error_tracking"] = with_shape_accuracy(tracking, out["records"])
         out["curves"] = {"latent": curves_to_json(latent_curves), "sdf": curves_to_json(sdf_curves)}
     if "locality" in protocols and not has_cameras(run.world, [k.shape_id for k in run.keys]):
         log.warning("Table L skipped: the test renders of %s have no cameras (views.npz), so which parts a "

@@ -170,14 +170,18 @@ def by_encoder_then_scale(rows: Sequence[dict]) -> list[dict]:
 
 
 def table_error_tracking(rows: Sequence[dict]) -> Table:
-    """Per encoder and crop setting: latent error, mean predicted covariance trace, and their rank correlation."""
+    """Per encoder and crop setting: latent error, shape accuracy, mean predicted covariance trace, and the
+    rank correlation of trace and error; pooled rows rank the clean and the cropped views together."""
     table = Table("Table U: does the predicted variance track the error?",
-                  "Single test views cropped to a random area in [min scale, 1]. Rank corr: Spearman correlation over "
-                  "the views between the covariance trace and the squared latent error (> 0: the encoder is less "
-                  "sure where it is more wrong). A deterministic encoder has no variance to rank.",
-                  ["Method", "min scale", "latent L2", "mean var trace", "rank corr", "n"])
+                  "Single test views cropped to a random area in [min scale, 1]; '1 & s' pools the clean views with "
+                  "those cropped at s. Rank corr: Spearman correlation over the views between the covariance trace "
+                  "and the squared latent error (> 0: the encoder is less sure where it is more wrong). IoU and CD: "
+                  "the same views' single-view reconstructions (shape space), beside the latent error. A "
+                  "deterministic encoder has no variance to rank.",
+                  ["Method", "min scale", "latent L2", "IoU", "CD", "mean var trace", "rank corr", "n"])
     for r in by_encoder_then_scale(rows):
-        table.rows.append([r["label"], r["min_scale"], r["l2"], r["var_trace"], r["rank_corr"], r["n"]])
+        scale = f"1 & {r['min_scale']:g}" if r.get("pooled") else r["min_scale"]
+        table.rows.append([r["label"], scale, r["l2"], r.get("iou"), r.get("cd"), r["var_trace"], r["rank_corr"], r["n"]])
     return table
 
 

@@ -20,7 +20,7 @@ from ushape.data.layout import WorldIndex
 from ushape.decoder.artifacts import CodeTable
 from ushape.encoder.latent_metrics import latent_l2, variance_tracks_error
 from ushape.evaluation.calibration import calibration_curve, calibration_error
-from ushape.evaluation.protocols import EncoderSpec
+from ushape.evaluation.protocols import EncoderSpec, summarise
 from ushape.evaluation.uncertainty import EQUAL_VARIANCE, latent_report, propagate_to_sdf, sdf_region_scores
 from ushape.evaluation.views import Encodings
 
@@ -72,6 +72,29 @@ def error_tracking_row(spec: EncoderSpec, encodings: Encodings, codes: CodeTable
     return {"encoder": spec.name, "label": spec.label, "min_scale": float(min_scale), "n": len(encodings.keys),
             "l2": float(latent_l2(encodings.mu, target)), "var_trace": float(encodings.var.sum(-1).mean()),
             "rank_corr": float(rank_corr)}
+
+
+def pooled_error_tracking_row(spec: EncoderSpec, clean: Encodings, cropped: Encodings, codes: CodeTable,
+                              min_scale: float) -> dict:
+    """`error_tracking_row` over the clean and the cropped views together: whether the variance ranks a
+    view's error both across shapes and across how much of the object the view shows."""
+    both = Encodings(clean.keys + cropped.keys, torch.cat([clean.mu, cropped.mu]), torch.cat([clean.var, cropped.var]))
+    return {**error_tracking_row(spec, both, codes, min_scale), "pooled": True}
+
+
+def with_shape_accuracy(rows: list[dict], records: list[dict]) -> list[dict]:
+    """Each error-tracking row with the mean single-view IoU and Chamfer of the same encoder and crop
+    (latent error alone misleads where codes are not identifiable); None where none was measured."""
+    cells = {(r["encoder"], r["min_scale"]): r for r in summarise(x for x in records if x["protocol"] == "single")}
+    out = []
+    for row in rows:
+        scales = [row["min_scale"]] if not row.get("pooled") else [1.0, row["min_scale"]]
+        found = [cells.get((row["encoder"], s)) for s in scales]
+        found = [f for f in found if f is not None]
+        n = sum(f["n"] for f in found)
+        out.append({**row, "iou": sum(f["iou"] * f["n"] for f in found) / n if n else None,
+                    "cd": sum(f["cd"] * f["n"] for f in found) / n if n else None})
+    return out
 
 
 def sdf_rows(spec: EncoderSpec, encodings: Encodings, decoder, world: WorldIndex, n_points: int = 1024,
