@@ -79,3 +79,18 @@ def test_world_built_from_real_renders_records_their_agreement(r2n2_chair, shape
         assert views["masks"].shape == (6, 137, 137)
         np.testing.assert_array_equal(views["masks"], r2n2_chair[2][:6])
     assert "overlap our renders" not in caplog.text
+
+
+def test_a_mesh_in_the_wrong_axes_is_flagged(shapenet_sample, renderings, tmp_path, caplog):
+    # The v2 mesh filed as a v1 model: the cameras assume v1 axes, the renders disagree, the build warns.
+    v1_root = tmp_path / "ShapeNetCore.v1"
+    (v1_root / CHAIRS / CHAIR).mkdir(parents=True)
+    (v1_root / CHAIRS / CHAIR / "model.obj").symlink_to(shapenet_sample / CHAIRS / CHAIR / "models" / "model_normalized.obj")
+    world = ShapeNetWorld("chairs", str(v1_root), str(tmp_path / "cache"), renderings_root=str(renderings),
+                          samples_per_shape=2000, n_views=4, image_size=137)
+    assert world.layout == "v1"
+    with pytest.warns(UserWarning, match="only one shape"):
+        index = world.build()
+    with np.load(index.views_path(CHAIR)) as views:
+        assert float(views["r2n2_mask_iou"]) < shapenet_rendering.AGREEMENT_WARNING
+    assert "overlap our renders" in caplog.text
