@@ -108,6 +108,8 @@ def test_real_sample_chairs_build(shapenet_sample, tmp_path):
             assert len(samples["neg"]) > 250  # real chairs enclose volume
         record = json.loads(index.shape_path(sid).read_text())
         assert record["layout"] == "v2" and record["scale"] > 0
+        # How sure the signs are, for filtering: these three chairs are enclosed throughout.
+        assert record["sdf_signs"]["samples"] == 5000 and record["sdf_signs"]["confidence"] > 0.99
         with Image.open(index.image_path(sid, 0)) as image:
             alpha = np.asarray(image)[..., 3]
         assert 0.02 < (alpha > 0).mean() < 0.8

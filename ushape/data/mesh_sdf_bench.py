@@ -87,12 +87,14 @@ def real_rows(methods: dict[str, ModuleType], root: Path, n: int) -> list[dict[s
         row: dict[str, Any] = {"model": name, "faces": len(raw.faces), "solid voxels": has_interior(occupancy)}
         for method, module in methods.items():
             rng = np.random.default_rng(0)
+            start = time.perf_counter()
             try:
                 result = module.sample_mesh_sdf(mesh, n, rng)
             except module.MeshProcessingError as err:
                 row[method] = None
                 row[f"{method} rejected"] = str(err)
                 continue
+            row[f"{method} s"] = round(time.perf_counter() - start, 2)
             samples, report = result if isinstance(result, tuple) else (result, None)
             rows_xyz = np.concatenate([samples["pos"], samples["neg"]]).astype(np.float64)
             checked, truth = tolerant_truth(occupancy, index_to_model, rows_xyz[:, :3] / scale + centre)

@@ -95,6 +95,16 @@ def open_shell_chair() -> SignCase:
                     "(a flood-filled voxelisation leaves them hollow; no test of the mesh can know which was meant)")
 
 
+def sheet_chair() -> SignCase:
+    """Seat and back each a single sheet meeting at an edge, on four closed legs: sheets enclose nothing."""
+    seat = trimesh.Trimesh([[-0.4, 0, -0.4], [0.4, 0, -0.4], [0.4, 0, 0.4], [-0.4, 0, 0.4]], [[0, 2, 1], [0, 3, 2]])
+    back = trimesh.Trimesh([[-0.4, 0, -0.4], [0.4, 0, -0.4], [0.4, 0.8, -0.4], [-0.4, 0.8, -0.4]], [[0, 1, 2], [0, 2, 3]])
+    legs = [((x - 0.04, -0.8, z - 0.04), (x + 0.04, -0.01, z + 0.04)) for x in (-0.33, 0.33) for z in (-0.33, 0.33)]
+    mesh = trimesh.util.concatenate([seat, back, union_of_closed_boxes(legs)])
+    return SignCase("chair of bare sheets on closed legs", mesh, in_boxes(legs),
+                    "only the legs are inside; the wedge between seat and back sheets is outside")
+
+
 def broken_soup(seed: int = 0) -> SignCase:
     """Three boxes: randomly flipped faces, one inside-out, duplicated and inner faces, a non-manifold edge and fin."""
     rng = np.random.default_rng(seed)
@@ -139,4 +149,4 @@ def sheet() -> SignCase:
     return SignCase("single sheet", mesh, lambda p: np.zeros(len(p), bool), "nothing is inside; rejected as enclosing no volume")
 
 
-KNOWN_ANSWER_CASES = (cabinet, drawer_table, open_shell_chair, broken_soup, sieve_sphere)
+KNOWN_ANSWER_CASES = (cabinet, drawer_table, open_shell_chair, sheet_chair, broken_soup, sieve_sphere)
