@@ -113,3 +113,18 @@ def test_real_sample_chairs_build(shapenet_sample, tmp_path):
         with Image.open(index.image_path(sid, 0)) as image:
             alpha = np.asarray(image)[..., 3]
         assert 0.02 < (alpha > 0).mean() < 0.8
+
+
+def test_a_record_rewritten_without_resampling_keeps_its_sign_report(shapenet_sample, tmp_path):
+    make = lambda: ShapeNetWorld("chairs", str(shapenet_sample), str(tmp_path), samples_per_shape=3000,  # noqa: E731
+                                 n_views=1, image_size=32, max_shapes=1)
+    with pytest.warns(UserWarning, match="val and test share"):
+        index = make().build()
+    sid = index.splits["train"][0]
+    before = json.loads(index.shape_path(sid).read_text())["sdf_signs"]
+    index.image_path(sid, 0).unlink()  # only the views are remade, so the record is rewritten
+    with pytest.warns(UserWarning, match="val and test share"):
+        make().build()
+    after = json.loads(index.shape_path(sid).read_text())
+    assert after["sdf_signs"] == before and before["samples"] == 3000
+    assert index.image_path(sid, 0).is_file()
