@@ -9,6 +9,7 @@ from PIL import Image
 
 from ushape.data.pix3d import (
     Pix3DImages,
+    crop_resize,
     Pix3DWorld,
     load_annotations,
     load_voxels,
@@ -133,3 +134,15 @@ def test_pix3d_world_preprocesses_models_and_skips_broken(pix3d_root, tmp_path):
 def test_load_voxels_errors(tmp_path):
     with pytest.raises(FileNotFoundError, match="voxel.mat"):
         load_voxels(tmp_path / "voxel.mat")
+
+
+def test_large_photos_are_filtered_not_sampled_down():
+    # One-pixel black and white stripes: each pixel of a 20 px crop covers 20 stripes, so mid grey.
+    stripes = np.zeros((400, 400), np.uint8)
+    stripes[:, ::2] = 255
+    crop = np.asarray(crop_resize(Image.fromarray(stripes), (0, 0, 400, 400), 20), np.float32)
+    assert np.abs(crop[2:-2, 2:-2] - 127.5).max() < 8
+    # Outside the photo is the fill colour.
+    padded = np.asarray(crop_resize(Image.fromarray(stripes), (-400, 0, 400, 800), 20, fill=0), np.float32)
+    assert padded[:, :8].max() == 0 and padded[:8, 12:].mean() > 100
+

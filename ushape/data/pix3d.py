@@ -163,8 +163,15 @@ def square_box(bbox: Sequence[float], margin: float = 0.1) -> tuple[float, float
 
 
 def crop_resize(image: Image.Image, box: Sequence[float], size: int, fill: Any = None) -> Image.Image:
-    """Crop `box` (may leave the image: the outside is `fill`, default transparent/zero) and resize to size x size."""
-    return image.transform((size, size), Image.EXTENT, tuple(box), resample=Image.BILINEAR, fillcolor=fill)
+    """Crop `box` (may leave the image: the outside is `fill`, default transparent/zero) and resize to size x size.
+
+    The crop is cut at about the photo's own resolution and then resized, which filters over every
+    source pixel: a Pix3D photo is often 1000+ px across, and sampling it straight down to 224 px
+    (a transform's bilinear taps) would alias.
+    """
+    side = max(size, round(max(box[2] - box[0], box[3] - box[1])))
+    crop = image.transform((side, side), Image.EXTENT, tuple(box), resample=Image.BILINEAR, fillcolor=fill)
+    return crop if side == size else crop.resize((size, size), Image.BILINEAR)
 
 
 def view_rgba(root: Path, entry: Pix3DEntry, size: int, margin: float) -> np.ndarray:
