@@ -89,6 +89,18 @@ def test_encodings_are_cached_and_reused(sphere_world, tmp_path):
     assert torch.equal(first.mu, second.mu) and len(list(tmp_path.glob("enc_*.pt"))) == 1
 
 
+def test_another_world_with_the_same_shape_ids_is_encoded_anew(sphere_world, tmp_path):
+    from eval_world import build_sphere_world
+
+    other = build_sphere_world(tmp_path / "other")  # same ids, views drawn again
+    predictor = FakePredictor(tmp_path / "x.ckpt")
+    predictor.checkpoint.write_bytes(b"x")
+    keys = [ViewKey("test_0", v) for v in range(3)]
+    encode_views(predictor, sphere_world, keys, 1.0, cache_dir=tmp_path / "cache")
+    encode_views(predictor, other, keys, 1.0, cache_dir=tmp_path / "cache")
+    assert len(list((tmp_path / "cache").glob("enc_*.pt"))) == 2
+
+
 def test_sphere_pipeline_scores_good_reconstructions_and_corruption_hurts(sphere_world, sphere_codes, tmp_path):
     settings = tiny_settings(protocols=("single_view", "multi_view", "corrupted"))
     run = make_run(sphere_world, sphere_codes, tmp_path / "cache", "es", tmp_path, settings)

@@ -110,7 +110,9 @@ def encode_views(predictor, world: WorldIndex, keys: Sequence[ViewKey], min_scal
     keys = list(keys)
     cache = None
     if cache_dir is not None:
-        listing = hashlib.sha1("|".join(f"{k.shape_id}/{k.view}" for k in keys).encode()).hexdigest()[:12]
+        # The world folder too: two Pix3D worlds (another crop margin or size) share their shape ids.
+        views = "|".join(f"{k.shape_id}/{k.view}" for k in keys)
+        listing = hashlib.sha1(f"{Path(world.root).resolve()}|{views}".encode()).hexdigest()[:12]
         read = "" if mask_input == "gt_mask" else f"_{mask_input}"
         cache = Path(cache_dir) / f"enc_{encoder_tag(predictor)}_{min_scale:g}_{seed}_{listing}{read}.pt"
         if cache.is_file():
