@@ -138,3 +138,13 @@ def test_hemisphere_directions_are_unit_and_on_the_normal_side(rng):
     np.testing.assert_allclose(np.linalg.norm(directions, axis=2), 1.0, atol=1e-12)
     cosines = np.einsum("prj,pj->pr", directions, normals)
     assert cosines.min() > 0 and abs(cosines.mean() - 0.5) < 0.05  # uniform on a hemisphere: mean cosine 1/2
+
+
+def test_sign_benchmark_prints_the_known_answer_table(capsys):
+    from ushape.data import mesh_sdf_bench
+
+    assert mesh_sdf_bench.main(["--samples", "2000"]) == 0
+    table = capsys.readouterr().out
+    rows = {line.split(" | ")[0].strip("| "): line.split(" | ") for line in table.splitlines() if line.startswith("| ")}
+    assert set(rows) >= {case().name for case in sign_cases.KNOWN_ANSWER_CASES}
+    assert rows["cabinet with open cubbies"][3] == "1.0000"  # the current method's column

@@ -41,6 +41,7 @@ INSIDE_ESCAPE = 0.05  # in the band, inside if fewer than this share of rays esc
 CLEARLY_OPEN = 0.25  # in the band with at least this share of rays escaping: plainly outside (beside a sheet)
 RAY_CHUNK = 8192  # points per Embree batch: n_rays x this many rays stay ~100 MB
 VOTE_POINTS, VOTE_RAYS = 32, 16  # per open patch: surface points, rays per side of each point
+VOTE_BUDGET = 65_536  # at most this many vote points in all: a soup of many open patches gets fewer each (>= 4)
 VOTE_OFFSET = 1e-5  # ray origins this far (x model extent) off the patch, clear of its own faces
 
 
@@ -157,13 +158,14 @@ def orient_surface(vertices: np.ndarray, faces: np.ndarray, rng: np.random.Gener
 
 
 def _escapes_per_side(vertices, faces, labels, open_ids, area, normals, rng) -> tuple[np.ndarray, np.ndarray]:
-    """(front, back) [len(open_ids)]: rays escaping from VOTE_POINTS area-weighted points of each open patch."""
+    """(front, back) [len(open_ids)]: rays escaping from up to VOTE_POINTS area-weighted points of each open patch."""
     in_open = np.flatnonzero(np.isin(labels, open_ids))
     in_open = in_open[np.argsort(labels[in_open], kind="stable")]
     cumulative = np.cumsum(area[in_open])
     patch_end = cumulative[np.searchsorted(labels[in_open], open_ids, side="right") - 1]
     patch_start = patch_end - np.bincount(labels[in_open], area[in_open])[open_ids]
-    owner = np.repeat(np.arange(len(open_ids)), VOTE_POINTS)
+    per_patch = int(np.clip(VOTE_BUDGET // len(open_ids), 4, VOTE_POINTS))
+    owner = np.repeat(np.arange(len(open_ids)), per_patch)
     # Area-weighted faces within each patch: uniform positions along the patch's stretch of the cumulative area.
     target = patch_start[owner] + rng.random(len(owner)) * (patch_end - patch_start)[owner]
     face = in_open[np.minimum(np.searchsorted(cumulative, target), len(in_open) - 1)]
