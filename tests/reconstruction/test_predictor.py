@@ -111,3 +111,14 @@ def test_encode_gives_positive_variances_and_applies_temperature(tiny_run, predi
     finally:
         path.unlink()
     assert json.loads((tiny_run["run"] / "run.json").read_text())["stage"] == "encoder"
+
+
+def test_tiny_inputs_are_read_with_a_warning(predictor, tmp_path, caplog):
+    """A 1x1 picture says nothing about a shape: it is reconstructed, but the user is told why it looks vague."""
+    dot = _save(tmp_path / "dot.png", np.full((1, 1, 3), 90), "RGB")
+    fine = _save(tmp_path / "fine.png", np.full((IMAGE_SIZE, IMAGE_SIZE, 3), 90), "RGB")
+    with caplog.at_level("WARNING", logger="ushape.reconstruction.predictor"):
+        images, kept, _ = predictor.load_images([dot, fine])
+    assert kept == [dot, fine] and images.shape[0] == 2
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warned) == 1 and "dot.png is only 1x1 px" in warned[0]

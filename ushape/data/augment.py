@@ -18,7 +18,7 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 import torch.nn.functional as F
-from PIL import Image, UnidentifiedImageError
+from PIL import Image, ImageOps, UnidentifiedImageError
 from torch import Tensor
 
 MASK_MODES = ("gt_mask", "none")
@@ -26,17 +26,43 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp")
 CROP_RATIO = (3 / 4, 4 / 3)  # aspect range (w/h) of random crops, torchvision's RandomResizedCrop default
 
 
-def load_rgba(path: str | Path) -> Tensor:
-    """Read an image file as premultiplied RGBA float [4, H, W] in [0, 1] (opaque if it has no alpha)."""
+# Pillow modes holding one channel of integers wider than 8 bits. PNG's 16-bit grey opens as I;16
+# (older Pillow: I); convert("RGBA") clips those at 255, so every real value read as white.
+_WIDE_GREY_MODES = ("I;16", "I;16L", "I;16B", "I;16N", "I")
+_WIDE_GREY_WHITE = 65535.0
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """An image file as straight (not premultiplied) RGBA float32 [H, W, 4] in [0, 1], upright.
+
+    Every mode Pillow reads keeps its real content: 16-bit grey is scaled by 65535 (not clipped),
+    palette/LA/CMYK/1-bit go through Pillow's own conversion, and a JPEG's EXIF orientation is
+    applied. Modes with no fixed white level (32-bit float) are refused with a ValueError naming them.
+    """
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"image {path} does not exist")
     try:
         with Image.open(path) as img:
-            array = np.asarray(img.convert("RGBA"), dtype=np.float32) / 255.0
+            img = ImageOps.exif_transpose(img)
+            if img.mode in _WIDE_GREY_MODES:
+                grey = np.asarray(img, dtype=np.float32)
+                if grey.min() < 0 or grey.max() > _WIDE_GREY_WHITE:
+                    raise ValueError(f"{img.mode} values span [{grey.min():g}, {grey.max():g}], outside 16 bits")
+                grey = grey / _WIDE_GREY_WHITE
+                return np.stack([grey, grey, grey, np.ones_like(grey)], axis=-1)
+            if img.mode == "F":
+                raise ValueError("mode F (32-bit float) has no fixed white level; save it as 8- or 16-bit")
+            return np.asarray(img.convert("RGBA"), dtype=np.float32) / 255.0
+    except ValueError as err:
+        raise ValueError(f"image {path} cannot be read as RGBA: {err}") from err
     except (UnidentifiedImageError, OSError, SyntaxError) as err:
         raise ValueError(f"image {path} is corrupt or unreadable ({err}); re-render or delete it") from err
-    rgba = torch.from_numpy(array).permute(2, 0, 1).contiguous()
+
+
+def load_rgba(path: str | Path) -> Tensor:
+    """Read an image file as premultiplied RGBA float [4, H, W] in [0, 1] (opaque if it has no alpha)."""
+    rgba = torch.from_numpy(read_image(path)).permute(2, 0, 1).contiguous()
     rgba[:3] *= rgba[3:]
     return rgba
 

@@ -17,14 +17,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
-import numpy as np
 import torch
-from PIL import Image
 from torch import Tensor
 from tqdm.auto import tqdm
 
 from ushape import atomic
-from ushape.data.augment import CompositeBackground, Compose, RandomResizedCrop, load_rgba
+from ushape.data.augment import CompositeBackground, Compose, RandomResizedCrop, load_rgba, read_image
 from ushape.data.layout import WorldIndex
 
 MASK_INPUTS = ("gt_mask", "none")
@@ -63,12 +61,10 @@ def load_view(path: Path, mask_input: str = "gt_mask") -> Tensor:
     """Premultiplied RGBA [4, H, W] of a view: its own alpha (gt_mask), or opaque (none: the photo as is)."""
     if mask_input not in MASK_INPUTS:
         raise ValueError(f"mask_input must be one of {MASK_INPUTS}, got {mask_input!r}")
-    rgba = load_rgba(path)
     if mask_input == "none":
-        with Image.open(path) as image:
-            rgb = np.asarray(image.convert("RGB"), dtype=np.float32) / 255.0
-        rgba = torch.cat([torch.from_numpy(rgb).permute(2, 0, 1), torch.ones_like(rgba[:1])])
-    return rgba
+        rgb = torch.from_numpy(read_image(path)[..., :3]).permute(2, 0, 1)
+        return torch.cat([rgb, torch.ones_like(rgb[:1])])
+    return load_rgba(path)
 
 
 @dataclass(frozen=True)

@@ -35,6 +35,8 @@ TEMPERATURE_FILE = "temperature.json"
 HYDRA_CONFIG = Path(".hydra") / "config.yaml"
 RUNS_DIR = Path("outputs") / "runs"
 DEFAULT_CHECKPOINTS = (Path("checkpoints") / "best.ckpt", Path("checkpoints") / "last.ckpt")
+# An input whose longer side is more than this many times below the model's input size is warned about.
+SMALLEST_UPSCALE = 4
 NO_RUN_HINT = "train one with `make demo` / `python train.py experiment=quickstart`"
 
 
@@ -149,7 +151,11 @@ class Predictor:
         images, kept, skipped = [], [], []
         for path in paths:
             try:
-                images.append(self.prepare(load_rgba(path)))
+                rgba = load_rgba(path)
+                if max(rgba.shape[-2:]) * SMALLEST_UPSCALE < self.image_size:
+                    log.warning("%s is only %dx%d px, the model sees %d px: upsampling it adds no detail, "
+                                "expect a vague shape", path, rgba.shape[-1], rgba.shape[-2], self.image_size)
+                images.append(self.prepare(rgba))
                 kept.append(Path(path))
             except (ValueError, FileNotFoundError) as err:
                 log.warning("skipped %s: %s", path, err)
