@@ -128,3 +128,20 @@ def test_bad_inputs_raise(linear_decoder, kwargs, message):
         propagate_linearised(linear_decoder, **args)
     with pytest.raises(ValueError, match=message):
         propagate_mc(linear_decoder, **args)
+
+
+def test_decoding_refuses_nan_codes_and_codes_of_another_size(small_decoder):
+    """A NaN code used to decode to an all-NaN field in silence; a code of the wrong length to a raw matmul error."""
+    points = torch.zeros(4, 3)
+    with pytest.raises(ValueError, match="NaN"):
+        decode_points(small_decoder, torch.full((8,), float("nan")), points)
+    with pytest.raises(ValueError, match="code has 5 dimensions but the decoder takes 8"):
+        decode_points(small_decoder, torch.zeros(5), points)
+    with pytest.raises(ValueError, match="code has 5 dimensions but the decoder takes 8"):
+        propagate_linearised(small_decoder, torch.zeros(5), torch.ones(5), points)
+    with pytest.raises(ValueError, match="code has 5 dimensions but the decoder takes 8"):
+        propagate_mc(small_decoder, torch.zeros(5), torch.ones(5), points, n_samples=2)
+    from ushape.propagation.mesh import decode_field
+
+    with pytest.raises(ValueError, match="NaN"):
+        decode_field(small_decoder, torch.tensor([float("nan")] * 8), resolution=2)

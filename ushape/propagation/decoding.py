@@ -27,6 +27,13 @@ def check_latent_gaussian(mu: Tensor, var: Tensor) -> None:
     if (var < 0).any():
         raise ValueError("var must be >= 0 (a variance, not a log-variance or a standard deviation)")
 
+def check_code_size(decoder: Decoder, size: int) -> None:
+    """Raise a ValueError if the decoder declares a latent size (`latent_size`) other than `size`."""
+    expected = getattr(decoder, "latent_size", None)
+    if expected is not None and int(expected) != size:
+        raise ValueError(f"the code has {size} dimensions but the decoder takes {expected}: "
+                         "was it encoded for another decoder (or another latent basis)?")
+
 def check_points(points: Tensor) -> None:
     """Raise a ValueError unless points is [P, 3]."""
     if points.ndim != 2 or points.shape[-1] != 3:
@@ -46,6 +53,9 @@ def decode_points(
     """SDF f(x, z) at every point for one latent code, in chunks of `chunk` points, without gradients."""
     if z.ndim != 1:
         raise ValueError(f"z must be one latent code of shape [D], got {tuple(z.shape)}")
+    if not torch.isfinite(z).all():
+        raise ValueError("z holds NaN/inf: every SDF decoded from it would be NaN")
+    check_code_size(decoder, z.shape[0])
     check_points(points)
     check_chunk(chunk)
     out = torch.empty(points.shape[0], dtype=output_dtype(points, bf16), device=points.device)

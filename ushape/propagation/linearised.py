@@ -11,6 +11,7 @@ from ushape.propagation.decoding import (
     output_dtype,
     autocast,
     check_chunk,
+    check_code_size,
     check_latent_gaussian,
     check_points,
     frozen,
@@ -52,6 +53,7 @@ def propagate_linearised(
     Costs about one forward and one backward pass per chunk, however many samples MC would need.
     """
     check_latent_gaussian(mu, var)
+    check_code_size(decoder, mu.shape[0])
     check_points(points)
     check_chunk(chunk)
     dtype = output_dtype(points, bf16)

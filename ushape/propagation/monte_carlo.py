@@ -10,6 +10,7 @@ from ushape.propagation.decoding import (
     output_dtype,
     autocast,
     check_chunk,
+    check_code_size,
     check_latent_gaussian,
     check_points,
     frozen,
@@ -45,6 +46,7 @@ def propagate_mc(
             f"n_samples must be an integer >= 2: the unbiased sample variance divides by M-1 (got {n_samples!r})"
         )
     check_latent_gaussian(mu, var)
+    check_code_size(decoder, mu.shape[0])
     check_points(points)
     check_chunk(chunk)
     codes = sample_codes(mu, var, n_samples, generator).unsqueeze(1)  # [M, 1, D]
