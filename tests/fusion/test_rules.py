@@ -166,3 +166,20 @@ def test_k_accepts_integer_likes_and_rejects_others():
     for bad in (1.5, True, "2", -1):
         with pytest.raises(ValueError, match="k must be an integer >= 1"):
             fuse_bayesian_k(mu, var, bad)
+
+
+def test_integer_views_are_fused_as_floats():
+    """Integer codes (say, hand-typed) used to fail raw inside mean(); they are numbers like any other."""
+    mu, var = torch.tensor([[1, 2], [3, 6]]), torch.tensor([[1, 1], [1, 1]])
+    for fused in (fuse_average(mu, var), fuse_bayesian(mu, var), fuse_bayesian_k(mu, var, k=2)):
+        assert fused.mu.dtype == torch.get_default_dtype()
+        assert torch.allclose(fused.mu, torch.tensor([2.0, 4.0]))
+
+
+def test_bayesian_fusion_of_huge_means_stays_finite():
+    """At the variance floor 1/var * mu overflows float32 for |mu| ~ 1e30; the fused mean does not."""
+    mu = torch.tensor([[1e30, -2e30], [3e30, -2e30]])
+    var = torch.full_like(mu, 1e-9)
+    for fused in (fuse_bayesian(mu, var), fuse_bayesian_k(mu, var, k=2)):
+        assert torch.isfinite(fused.mu).all()
+        assert torch.allclose(fused.mu, torch.tensor([2e30, -2e30]), rtol=1e-5)

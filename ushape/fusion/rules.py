@@ -23,6 +23,11 @@ class FusedCode(NamedTuple):
     kept: Tensor  # [..., K] long, view indices in ascending order
 
 
+def as_floating(mu: Tensor, var: Tensor) -> tuple[Tensor, Tensor]:
+    """mu, var with integer or bool inputs promoted to torch's default float dtype (floats kept as they are)."""
+    return tuple(t if t.is_floating_point() else t.to(torch.get_default_dtype()) for t in (mu, var))
+
+
 def check_views(mu: Tensor, var: Tensor) -> None:
     """Raise a ValueError that says what is wrong with per-view Gaussians mu, var [..., V, D]."""
     if mu.shape != var.shape:
@@ -73,6 +78,7 @@ def fuse_average(mu: Tensor, var: Tensor) -> FusedCode:
     estimator if the views' errors are independent, so it shrinks with V like Bayesian
     fusion does, but without favouring the confident views.
     """
+    mu, var = as_floating(mu, var)
     check_views(mu, var)
     n_views = mu.shape[-2]
     return FusedCode(mu.mean(dim=-2), var.mean(dim=-2) / n_views, _all_views(mu))
@@ -84,9 +90,11 @@ def product_of_gaussians(mu: Tensor, var: Tensor, var_floor: float) -> tuple[Ten
         # A single view is its own posterior; skip 1/(1/v), which is not exact in floating point.
         return mu[..., 0, :].clone(), var[..., 0, :].clamp(min=var_floor)
     information = var.clamp(min=var_floor).reciprocal()
-    fused_var = information.sum(dim=-2).reciprocal()
-    fused_mu = fused_var * (information * mu).sum(dim=-2)
-    return fused_mu, fused_var
+    total = information.sum(dim=-2)
+    # mu as a convex combination (weights summing to 1): information * mu overflows float32 for
+    # |mu| ~ 1e30 at the variance floor, although the fused mean itself is representable.
+    fused_mu = (information / total.unsqueeze(-2) * mu).sum(dim=-2)
+    return fused_mu, total.reciprocal()
 
 
 def fuse_bayesian(mu: Tensor, var: Tensor, var_floor: float = 1e-8) -> FusedCode:
@@ -98,6 +106,7 @@ def fuse_bayesian(mu: Tensor, var: Tensor, var_floor: float = 1e-8) -> FusedCode
     """
     if var_floor <= 0:
         raise ValueError(f"var_floor must be > 0, got {var_floor}")
+    mu, var = as_floating(mu, var)
     check_views(mu, var)
     fused_mu, fused_var = product_of_gaussians(mu, var, var_floor)
     return FusedCode(fused_mu, fused_var, _all_views(mu))
@@ -123,6 +132,7 @@ def fuse_bayesian_k(mu: Tensor, var: Tensor, k: int, var_floor: float = 1e-8) ->
     k = check_k(k)
     if var_floor <= 0:
         raise ValueError(f"var_floor must be > 0, got {var_floor}")
+    mu, var = as_floating(mu, var)
     check_views(mu, var)
     n_views = mu.shape[-2]
     if k > n_views:
