@@ -76,3 +76,31 @@ def test_two_concurrent_runs_train_once(tmp_path):
         p.join(60)
         assert p.exitcode == 0
     assert log.read_text().count("trained") == 1
+
+
+def test_stage1_worker_count_does_not_retrain_the_decoder(tmp_path):
+    """stage1.data.num_workers used to be hashed with the rest of stage1: changing it trained stage 1 again."""
+    stage1 = {"epochs": 3, "data": {"samples_per_shape": 64, "num_workers": 4}}
+    calls = []
+    first = ensure_decoder(_cfg(tmp_path, stage1=stage1), lambda d: (calls.append(d), _fake_train(d)))
+    fewer = _cfg(tmp_path, stage1={"epochs": 3, "data": {"samples_per_shape": 64, "num_workers": 0}})
+    assert ensure_decoder(fewer, lambda d: calls.append(d)) == first and len(calls) == 1
+    assert decoder_dir_for(_cfg(tmp_path, stage1={"epochs": 3, "data": {"samples_per_shape": 32}})) != first
+
+
+def test_decoders_named_by_the_older_identity_are_still_found(tmp_path):
+    """A decoder trained when the worker count was part of the identity is reused, not trained again."""
+    cfg = _cfg(tmp_path, stage1={"epochs": 3, "data": {"num_workers": 4}})
+    old = decoder_dir_for(cfg, legacy=True)
+    assert old != decoder_dir_for(cfg)
+    old.mkdir(parents=True)
+    _fake_train(old)
+    assert ensure_decoder(cfg, lambda d: (_ for _ in ()).throw(AssertionError("retrained"))) == old
+
+
+def test_an_unfinished_decoder_of_the_older_identity_is_resumed_in_place(tmp_path):
+    cfg = _cfg(tmp_path, stage1={"epochs": 3, "data": {"num_workers": 4}})
+    old = decoder_dir_for(cfg, legacy=True)
+    (old / "checkpoints").mkdir(parents=True)  # a stage 1 interrupted before the identity changed
+    trained = []
+    assert ensure_decoder(cfg, lambda d: (trained.append(d), _fake_train(d))) == old and trained == [old]

@@ -28,11 +28,17 @@ log = logging.getLogger(__name__)
 _SYNTHETIC_TARGET = "ushape.data.world.SyntheticWorld"
 
 
-def decoder_identity(cfg: DictConfig) -> dict[str, Any]:
-    """The part of the config that determines the stage-1 decoder (not logging, workers or device)."""
+def decoder_identity(cfg: DictConfig, legacy: bool = False) -> dict[str, Any]:
+    """The part of the config that determines the stage-1 decoder (not logging, workers or device).
+
+    legacy=True is the identity before stage1.data.num_workers was left out (see `legacy_decoder_dir_for`).
+    """
     data = OmegaConf.to_container(cfg.data, resolve=True)
     data.pop("num_workers", None)
     stage1 = OmegaConf.to_container(cfg.stage1, resolve=True)
+    if not legacy:
+        # Loader processes change which random samples each batch draws, not the recipe being trained.
+        (stage1.get("data") or {}).pop("num_workers", None)
     # Left out as the trainer's precision always was, so decoders trained before stage1.precision
     # existed (all fp32 on CPU) are still found.
     stage1.pop("precision", None)
@@ -53,9 +59,19 @@ def identity_hash(identity: Mapping[str, Any]) -> str:
     return hashlib.sha256(json.dumps(identity, sort_keys=True).encode()).hexdigest()[:12]
 
 
-def decoder_dir_for(cfg: DictConfig) -> Path:
-    identity = decoder_identity(cfg)
+def decoder_dir_for(cfg: DictConfig, legacy: bool = False) -> Path:
+    identity = decoder_identity(cfg, legacy)
     return Path(cfg.paths.decoders_dir).resolve() / f"{identity['category']}-{identity_hash(identity)}"
+
+
+def legacy_decoder_dir_for(cfg: DictConfig) -> Path | None:
+    """The decoder folder named by the older identity (with stage1.data.num_workers), if only it exists.
+
+    Decoders trained, or being trained, before the worker count left the identity keep being found
+    (and resumed from their checkpoints) instead of trained again from scratch.
+    """
+    folder, current = decoder_dir_for(cfg, legacy=True), decoder_dir_for(cfg)
+    return folder if folder != current and folder.is_dir() and not current.exists() else None
 
 
 def is_complete(decoder_dir: Path) -> bool:
@@ -78,7 +94,7 @@ def ensure_decoder(cfg: DictConfig, train: Callable[[Path], None], lock_timeout_
     main=False is another rank of a DDP run whose rank 0 holds the lock: it calls `train` too (to join
     rank 0's fit, which alone writes the folder), then waits for the folder to be complete.
     """
-    folder = decoder_dir_for(cfg)
+    folder = legacy_decoder_dir_for(cfg) or decoder_dir_for(cfg)
     if is_complete(folder):
         log.info("Reusing the stage-1 decoder in %s", folder)
         return folder
