@@ -19,12 +19,32 @@ _UMASK = os.umask(0)
 os.umask(_UMASK)
 
 
+TEMP_MARK = ".tmp"  # temporary files are ".<name>.<random>.tmp<suffix>"
+
+
+def is_temp_file(path: str | os.PathLike) -> bool:
+    """Whether `path` is the temporary file of an atomic write (left behind if the process was killed)."""
+    name = Path(path).name
+    return name.startswith(".") and TEMP_MARK in name
+
+
+def remove_temp_files(folder: str | os.PathLike) -> list[Path]:
+    """Delete the leftover temporary files under `folder` (recursively); returns them.
+
+    Only safe while nobody else writes there (the world build calls it under its lock).
+    """
+    removed = [p for p in Path(folder).rglob(f".*{TEMP_MARK}*") if p.is_file() and is_temp_file(p)]
+    for path in removed:
+        path.unlink(missing_ok=True)
+    return removed
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside `path`; on success move it over `path` in one rename."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + path.suffix, dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMP_MARK + path.suffix, dir=path.parent)
     os.close(fd)
     tmp_path = Path(tmp)
     os.chmod(tmp_path, 0o666 & ~_UMASK)  # mkstemp makes 0600; a cache should read like any other file

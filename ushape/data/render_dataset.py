@@ -18,6 +18,7 @@ import torch
 from torch import Tensor
 from torch.utils.data import DataLoader, Dataset
 
+from ushape import atomic
 from ushape.data.augment import build_transform, load_rgba
 from ushape.data.layout import RENDERS_DIR, SPLITS_DIR
 from ushape.decoder.artifacts import CodeTable, codes_file, load_codes
@@ -39,7 +40,8 @@ def read_split(world_root: str | Path, split: str) -> list[str]:
 def view_files(world_root: str | Path, shape_id: str, views: Sequence[int] | None = None) -> list[Path]:
     """The PNG renders of one shape, in view order; `views` picks indices (None: all)."""
     folder = Path(world_root) / RENDERS_DIR / shape_id
-    files = sorted(folder.glob("*.png"))
+    # Not the temporary files of interrupted atomic writes (".03.png.x.tmp.png"): they are no views.
+    files = sorted(p for p in folder.glob("*.png") if not atomic.is_temp_file(p))
     if not files:
         raise FileNotFoundError(f"no renders in {folder}: render the world first (expects 00.png, 01.png, ...)")
     if views is None:

@@ -8,6 +8,7 @@ the old one instead of silently mixing the two. Layout: see `ushape.data.layout`
 from __future__ import annotations
 
 import hashlib
+import importlib
 import json
 import logging
 import time
@@ -17,6 +18,7 @@ from pathlib import Path
 from typing import Any, Iterable, Optional
 
 import numpy as np
+from filelock import FileLock
 
 from ushape import atomic
 from ushape.data.jobs import run_jobs
@@ -103,8 +105,18 @@ class SyntheticWorld:
         After the call, `last_build` counts the artifacts made ("shape", "mesh", "sdf",
         "renders", and "splits"/"config" files); an up-to-date world makes none.
         """
+        # One builder per world at a time: a second job waits, then finds everything made.
+        self.directory.parent.mkdir(parents=True, exist_ok=True)
+        with FileLock(str(self.directory) + ".lock"):
+            return self._build()
+
+    def _build(self) -> WorldIndex:
         start = time.perf_counter()
         self.last_build = Counter()
+        if self.directory.is_dir():
+            leftovers = atomic.remove_temp_files(self.directory)  # of builds killed mid-write
+            if leftovers:
+                log.info("removed %d temporary files of an interrupted build from %s", len(leftovers), self.directory)
         self._write_config()
         index = WorldIndex(root=self.directory, category=self.config["category"], splits={}, config=self.config)
         seeds = shape_seeds(self.config["seed"], self.counts)
@@ -122,6 +134,28 @@ class SyntheticWorld:
         log.info("%s world %s ready in %.1fs (made %s)", index.category, self.directory,
                  time.perf_counter() - start, dict(self.last_build) or "nothing")
         return WorldIndex.load(self.directory)
+
+    @classmethod
+    def from_index(cls, index: WorldIndex) -> Optional["SyntheticWorld"]:
+        """The SyntheticWorld that built `index`, able to check and repair it; None if it cannot be rebuilt
+        here (not a synthetic world, another generator version, an unimportable shape factory, a renamed folder)."""
+        config = dict(index.config)
+        if config.get("generator_version") != GENERATOR_VERSION:
+            return None
+        factory = None
+        if "shape_factory" in config:
+            module, _, name = str(config["shape_factory"]).rpartition(".")
+            try:
+                factory = getattr(importlib.import_module(module), name)
+            except (ImportError, AttributeError, ValueError):
+                return None
+        try:
+            world = cls(config["category"], str(index.root.parent), config["n_train"], config["n_val"], config["n_test"],
+                        config["seed"], config["samples_per_shape"], config["n_views"], config["image_size"],
+                        config["mesh_resolution"], shape_factory=factory)
+        except (KeyError, TypeError, ValueError):
+            return None
+        return world if world.config == config and world.directory.resolve() == index.root.resolve() else None
 
     def _write_config(self) -> None:
         path = self.directory / "config.json"
@@ -153,6 +187,17 @@ class SyntheticWorld:
 
     def _run(self, jobs: list[ShapeJob]) -> Iterable[ShapeResult]:
         return run_jobs(build_shape, jobs, self.num_workers, desc=f"{self.config['category']} world", unit="shape")
+
+
+def open_world(root: str | Path) -> WorldIndex:
+    """A world folder for any command to read: laid out right, and for a synthetic world every file
+    checked and the missing or corrupt ones regenerated (with a warning naming them), as `build` does."""
+    index = WorldIndex.load(root)
+    world = SyntheticWorld.from_index(index)
+    if world is None:
+        log.info("%s is not a synthetic world this version can rebuild: its files are not checked here", index.root)
+        return index
+    return world.build()
 
 
 def default_shape_factory(category: str) -> ShapeFactory:

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from ushape.data.layout import WorldIndex
+from ushape.data.world import open_world
 from ushape.data.sdf_dataset import SDFSamplesDataset
 from ushape.decoder.artifacts import CodeTable, codes_file, load_codes, save_codes
 from ushape.decoder.latent_optim import optimise_codes
@@ -100,10 +101,12 @@ def loss_name(predictor) -> str:
 
 
 def load_encoder(run_dir: str | Path, settings: Settings, cache_dir: Path | None, taken: set[str],
-                 world_dir: str | Path | None = None, temperature: bool = False) -> EncoderRun:
+                 world_dir: str | Path | None = None, temperature: bool = False,
+                 opened: dict[Path, WorldIndex] | None = None) -> EncoderRun:
     """A run folder -> its predictor, world (run.json's, or world_dir), decoder and the test views to evaluate.
 
     temperature=True scales the predicted variances by the temperature stored beside the checkpoint.
+    The world is checked (and a synthetic one repaired) by `open_world`, once per folder in `opened`.
     """
     from ushape.reconstruction.predictor import load_predictor, read_temperature
 
@@ -114,7 +117,9 @@ def load_encoder(run_dir: str | Path, settings: Settings, cache_dir: Path | None
     if world_dir is None:
         raise FileNotFoundError(f"{run_dir} has no run.json naming its data world (an unfinished run?): "
                                 "pass the world folder with world=<outputs/data/synthetic/...>")
-    world = WorldIndex.load(world_dir)
+    opened = {} if opened is None else opened
+    key = Path(world_dir).resolve()
+    world = opened[key] if key in opened else opened.setdefault(key, open_world(world_dir))
     name = loss_name(predictor)
     if name in taken:  # two runs with one loss: keep both, told apart by their folder
         name = f"{name}:{Path(run_dir).name}"
@@ -244,7 +249,8 @@ def evaluate_runs(run_dirs: Sequence[str | Path], settings: Settings, cache_dir:
     if not run_dirs:
         raise ValueError("no runs to evaluate: pass runs=[<run folder>, ...] or sweep=<multirun folder>")
     taken: set[str] = set()
-    runs = [load_encoder(run_dir, settings, cache_dir, taken, world_dir, temperature) for run_dir in run_dirs]
+    opened: dict[Path, WorldIndex] = {}
+    runs = [load_encoder(run_dir, settings, cache_dir, taken, world_dir, temperature, opened) for run_dir in run_dirs]
     variants = [(variant, run_dir) for run, run_dir in zip(runs, run_dirs) for variant in mask_variants(run)]
     result = evaluate_all([v for v, _ in variants], settings, cache_dir, setting, showcase_dir)
     for run, run_dir in variants:

@@ -182,7 +182,8 @@ def collect_inputs(inputs: Iterable[str | Path]) -> list[Path]:
     for item in inputs:
         path = Path(item).expanduser()
         if path.is_dir():
-            found = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+            # Hidden files are no views: macOS's ._x.png, or the temporary file of an interrupted write.
+            found = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
             if not found:
                 raise FileNotFoundError(f"folder {path} holds no {'/'.join(IMAGE_SUFFIXES)} images")
             files += found
