@@ -109,3 +109,21 @@ def test_prior_head_init_starts_at_the_training_codes_gaussian(decoder_dir, tiny
     assert torch.allclose(logvar.exp(), codes.var(0).expand_as(logvar), rtol=1e-3)
     with pytest.raises(ValueError, match="head_init"):
         EncoderModule(str(decoder_dir), tiny_encoder, ES, head_init="zeros")
+
+
+def test_last_checkpoint_is_the_last_epoch_and_resume_continues_there(world, decoder_dir, tmp_path, tiny_encoder):
+    """Lightning wrote last.ckpt only with a new best: with a best at epoch 0 it stayed at epoch 0."""
+    run = tmp_path / "run"
+    trainer = {"accelerator": "cpu", "limit_train_batches": 1, "limit_val_batches": 1, "num_sanity_val_steps": 0,
+               "enable_progress_bar": False, "enable_model_summary": False}
+    kwargs = dict(encoder=tiny_encoder, loss=ES, module={"lr": 0.01, "val_samples": 8},
+                  data={"image_size": 16, "batch_size": 4}, logger=False, monitor="step")  # min step: epoch 0 is best
+    best = fit_encoder(world, decoder_dir, run, trainer={**trainer, "max_epochs": 3}, **kwargs)
+    last = run / "checkpoints" / "last.ckpt"
+    assert torch.load(best, map_location="cpu", weights_only=False)["epoch"] == 0
+    blob = torch.load(last, map_location="cpu", weights_only=False)
+    assert (blob["epoch"], blob["global_step"]) == (2, 3)
+    fit_encoder(world, decoder_dir, run, trainer={**trainer, "max_epochs": 4}, **kwargs)  # one more epoch
+    blob = torch.load(last, map_location="cpu", weights_only=False)
+    assert (blob["epoch"], blob["global_step"]) == (3, 4)
+    assert sorted(p.name for p in last.parent.iterdir()) == ["best.ckpt", "last.ckpt"]

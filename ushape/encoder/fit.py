@@ -73,21 +73,26 @@ def fit_encoder(
     model = EncoderModule(decoder_path=str(decoder_dir), encoder=_plain(encoder), loss=_plain(loss), **_plain(module))
     if cached:
         datamodule = cached_feature_data(datamodule, model, train_passes)
-    checkpoint = ModelCheckpoint(dirpath=ckpt_dir, filename=BEST_NAME, monitor=monitor, mode="min", save_last=True)
+    checkpoint = ModelCheckpoint(dirpath=ckpt_dir, filename=BEST_NAME, monitor=monitor, mode="min")
+    # Lightning's save_last writes last.ckpt only in an epoch that also saved a top-k checkpoint, so
+    # after the best epoch it stopped moving and a resume lost every later epoch. This one is
+    # rewritten (same name, no -v1) at the end of every epoch.
+    last = ModelCheckpoint(dirpath=ckpt_dir, filename=Path(LAST_FILE).stem, monitor=None, save_top_k=1,
+                           enable_version_counter=False)
     if logger is None:
         logger = TensorBoardLogger(save_dir=str(out_dir), name="tensorboard")
     run = L.Trainer(
         **_plain(trainer),
         default_root_dir=str(out_dir),
         logger=logger,
-        callbacks=[checkpoint, *([LearningRateMonitor("step")] if logger is not False else []), *(callbacks or [])],
+        callbacks=[checkpoint, last, *([LearningRateMonitor("step")] if logger is not False else []), *(callbacks or [])],
         plugins=[AtomicCheckpointIO()],
     )
     resume = ckpt_dir / LAST_FILE
     if resume.exists():
         log.info("resuming stage-2 training from %s", resume)
     run.fit(model, datamodule=datamodule, ckpt_path=str(resume) if resume.exists() else None)
-    best = checkpoint.best_model_path or checkpoint.last_model_path
+    best = checkpoint.best_model_path or last.best_model_path
     if not best:
         raise RuntimeError(f"training wrote no checkpoint into {ckpt_dir}; check trainer limits (max_epochs/max_steps)")
     return Path(best)
