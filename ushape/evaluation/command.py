@@ -12,6 +12,7 @@ from omegaconf import DictConfig, OmegaConf
 from ushape.evaluation.report import write_results
 from ushape.evaluation.runner import PROTOCOLS, Settings, evaluate_runs
 from ushape.evaluation.sources import resolve_runs
+from ushape.experiment.validation import check_config
 
 log = logging.getLogger(__name__)
 
@@ -69,6 +70,7 @@ def evaluated_world(cfg: DictConfig) -> str | None:
 
 def run_eval(cfg: DictConfig) -> float | None:
     """Evaluate (or gather); returns the configured setting's mean multi-view IoU (what a sweeper maximises)."""
+    check_config(cfg)
     if cfg.get("gather"):
         from ushape.experiment.gather import gather
 

@@ -37,3 +37,29 @@ def print_summary(summary: Mapping[str, Any], out_dir: Path) -> None:
     if "tensorboard" in summary:
         lines.append(f"Watch with:   tensorboard --logdir {summary['tensorboard']}")
     Console(soft_wrap=True).print("\n".join(lines), highlight=False)
+
+
+# What Hydra and `print_config` write into every run folder before any work: no result in them.
+BOOKKEEPING = (".hydra", "config_tree.txt")
+
+
+def discard_if_bookkeeping_only(run_dir: Path) -> bool:
+    """Delete a failed run's folder if it holds nothing but bookkeeping (Hydra's config, logs); True if it did.
+
+    A run that fails before producing anything (a bad config, a missing dataset) would otherwise
+    leave an empty-looking folder that `eval.py` and `reconstruct.py` then have to skip.
+    """
+    if not run_dir.is_dir():
+        return False
+    for path in run_dir.rglob("*"):
+        relative = path.relative_to(run_dir)
+        if path.is_file() and relative.parts[0] not in BOOKKEEPING and not (len(relative.parts) == 1 and path.suffix == ".log"):
+            return False
+    import shutil
+
+    shutil.rmtree(run_dir, ignore_errors=True)
+    try:
+        run_dir.parent.rmdir()  # the day's folder, if this was its only run
+    except OSError:
+        pass
+    return True

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -19,13 +20,17 @@ from ushape.decoder.basis import ensure_basis
 from ushape.decoder.fit import fit_decoder
 from ushape.decoder.recode import ensure_codes
 from ushape.encoder.fit import fit_encoder
-from ushape.experiment.decoder_store import ensure_decoder
+from ushape.decoder.artifacts import CHECKPOINT_DIR
+from ushape.decoder.fit import LAST_CHECKPOINT
+from ushape.encoder.fit import CHECKPOINT_DIR as ENCODER_CHECKPOINTS, LAST_FILE
+from ushape.experiment.decoder_store import decoder_dir_for, ensure_decoder, legacy_decoder_dir_for
 from ushape.experiment.demo_meshes import write_demo_meshes
-from ushape.experiment.summary import RUN_SUMMARY, print_config, print_summary
+from ushape.experiment.interrupts import resume_command, resume_exit, stopping_signal, watch_signals
+from ushape.experiment.summary import RUN_SUMMARY, discard_if_bookkeeping_only, print_config, print_summary
+from ushape.experiment.validation import ConfigError, check_config
 
 log = logging.getLogger(__name__)
 
-STAGES = ("decoder", "encoder")
 # Set by whoever starts the processes of a distributed run: Lightning's DDP launcher (LOCAL_RANK,
 # NODE_RANK, RANK) or Slurm (SLURM_PROCID). All unset or 0 in the process that writes the results.
 RANK_VARIABLES = ("RANK", "LOCAL_RANK", "NODE_RANK", "SLURM_PROCID")
@@ -41,11 +46,36 @@ def run(cfg: DictConfig) -> float | None:
 
     Under DDP every process runs this (Lightning's launcher reruns `train.py` for ranks > 0 when the
     first `fit` starts); the other ranks join both fits and leave the folders to rank 0.
+    The config is checked before any work; a run that fails leaves no folder without results, and
+    one stopped by SIGTERM or Ctrl+C exits with 128 + the signal's number and prints how to resume.
     """
-    if cfg.stage not in STAGES:
-        raise ValueError(f"stage={cfg.stage!r} is not one of {STAGES}")
     main = is_main_process()
     out_dir = Path(cfg.paths.output_dir).resolve()
+    with watch_signals() as watch:
+        try:
+            check_config(cfg)
+            return _train(cfg, out_dir, main)
+        except BaseException as err:
+            if main and discard_if_bookkeeping_only(out_dir):
+                log.info("removed %s: the run stopped before writing anything", out_dir)
+            if isinstance(err, ConfigError):  # the user's typo: the message, not a traceback
+                print(f"error: {err}", file=sys.stderr)
+                raise SystemExit(2) from None
+            signum = stopping_signal(err, watch)
+            if signum is None or not main:
+                raise
+            raise resume_exit(signum, resume_command(sys.argv, out_dir), _kept(cfg, out_dir)) from None
+
+
+def _kept(cfg: DictConfig, out_dir: Path) -> list[str]:
+    """What a rerun of a stopped run starts from: the checkpoints already written."""
+    decoder_dir = legacy_decoder_dir_for(cfg) or decoder_dir_for(cfg)
+    found = [decoder_dir / CHECKPOINT_DIR / LAST_CHECKPOINT, out_dir / ENCODER_CHECKPOINTS / LAST_FILE]
+    kept = [f"{path} (resumed from)" for path in found if path.is_file()]
+    return kept or ["the data world cache (built files are reused); no checkpoint was written yet"]
+
+
+def _train(cfg: DictConfig, out_dir: Path, main: bool) -> float | None:
     out_dir.mkdir(parents=True, exist_ok=True)
     if main:
         print_config(cfg, out_dir / "config_tree.txt")

@@ -19,9 +19,11 @@ import time
 from pathlib import Path
 from typing import Sequence
 
+from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
+from ushape.fusion.rules import check_k
 from ushape.mesh.extraction import EmptySurfaceError
 from ushape.propagation.mesh import METHODS
 from ushape.reconstruction.pipeline import ReconstructionSettings, reconstruct
@@ -43,8 +45,11 @@ def build_fusion(name: str, k: int | None = None):
         raise ValueError(f"unknown fusion {name!r}; choose one of {fusion_names()}")
     config = OmegaConf.load(path)
     if k is not None and "k" in config:
-        config.k = k
-    return instantiate(config)
+        config.k = check_k(k)
+    try:
+        return instantiate(config)
+    except InstantiationException as err:  # Hydra wraps the rule's own ValueError in a long traceback
+        raise ValueError(f"fusion {name}: {err.__cause__ or err}") from err
 
 
 def build_parser() -> argparse.ArgumentParser:
