@@ -133,3 +133,39 @@ def test_module_schedule_follows_deepsdf(tiny_decoder_config):
         scheduler.step()
     assert [round(net / 1e-3, 6) for net, _ in lrs] == [1, 1, 0.5, 0.5, 0.5, 0.25, 0.25]
     assert all(codes == pytest.approx(2 * net) for net, codes in lrs)
+
+
+RESUME_KWARGS = dict(module={"latent_size": 8, "val_every_n_epochs": 5}, data={"samples_per_shape": 64, "shapes_per_batch": 2},
+                     latent_optim={"iterations": 2, "samples_per_iter": 16}, checkpoint_every_n_epochs=1, logger=False)
+
+
+def test_a_damaged_last_checkpoint_resumes_from_the_newest_intact_one(sphere_world, tiny_decoder_config, tmp_path, caplog):
+    """A truncated last.ckpt used to fail every rerun with a raw traceback while epoch=1-step=4.ckpt sat beside it."""
+    out = fit_decoder(sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 2}, **RESUME_KWARGS)
+    checkpoints = out / "checkpoints"
+    assert sorted(p.name for p in checkpoints.iterdir()) == ["epoch=1-step=4.ckpt", "last.ckpt"]
+    last = checkpoints / "last.ckpt"
+    last.write_bytes(last.read_bytes()[:1000])
+    (out / "DONE").unlink()
+    counter = EpochCounter()
+    with caplog.at_level("WARNING", logger="ushape.checkpoints"):
+        fit_decoder(sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 3},
+                    callbacks=[counter], **RESUME_KWARGS)
+    assert counter.started == [2]  # epochs 0-1 were kept, not retrained
+    assert "last.ckpt is damaged" in caplog.text and "resuming from epoch=1-step=4.ckpt" in caplog.text
+    assert (checkpoints / "last.ckpt.damaged").exists()
+    assert torch.load(last, weights_only=False)["epoch"] == 2
+
+
+def test_train_seconds_add_up_over_resumed_segments(sphere_world, tiny_decoder_config, tmp_path):
+    """DONE's train_seconds counted only the last segment of a resumed stage 1."""
+    out = fit_decoder(sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 1}, **RESUME_KWARGS)
+    last = out / "checkpoints" / "last.ckpt"
+    blob = torch.load(last, weights_only=False)
+    (clock,) = [k for k in blob["callbacks"] if k.startswith("TrainingClock")]
+    blob["callbacks"][clock]["seconds"] = 5000.0  # as if the first segment had run for 5000 s
+    torch.save(blob, last)
+    (out / "DONE").unlink()
+    fit_decoder(sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 2}, **RESUME_KWARGS)
+    done = json.loads((out / "DONE").read_text())
+    assert done["epochs"] == 2 and done["train_seconds"] >= 5000.0 and done["total_seconds"] >= done["train_seconds"]

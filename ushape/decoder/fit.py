@@ -16,6 +16,7 @@ from lightning.pytorch.callbacks import Callback, ModelCheckpoint
 from lightning.pytorch.loggers import Logger, TensorBoardLogger
 
 from ushape import atomic
+from ushape.checkpoints import resume_point
 from ushape.data.sdf_dataset import SDFSamplesDataset
 from ushape.decoder.artifacts import CHECKPOINT_DIR, DECODER_FILE, DONE_FILE, CodeTable, codes_file, save_codes, save_decoder
 from ushape.decoder.autodecoder import AutoDecoderModule
@@ -51,18 +52,18 @@ def fit_decoder(
     if (out_dir / DONE_FILE).exists():
         log.info("%s is complete (%s exists); nothing to do", out_dir, DONE_FILE)
         return out_dir
-    started = time.time()
     L.seed_everything(seed, workers=True)  # before the module exists: its weights and codes are drawn at init
     datamodule = SDFDataModule(world_root, **dict(data or {}))
     model = build_module(decoder, module, datamodule.num_shapes)
-    fitter = build_trainer(out_dir, model, trainer, checkpoint_every_n_epochs, logger, callbacks)
-    last = out_dir / CHECKPOINT_DIR / LAST_CHECKPOINT
-    fitter.fit(model, datamodule=datamodule, ckpt_path=str(last) if last.exists() else None)
+    clock = TrainingClock()
+    fitter = build_trainer(out_dir, model, trainer, checkpoint_every_n_epochs, logger, [clock, *callbacks])
+    resume = resume_point(out_dir / CHECKPOINT_DIR, LAST_CHECKPOINT)
+    fitter.fit(model, datamodule=datamodule, ckpt_path=str(resume) if resume else None)
     if fitter.interrupted:
-        raise RuntimeError(f"stage-1 training was interrupted; rerun to resume from {last}")
+        raise RuntimeError(f"stage-1 training was interrupted; rerun to resume from {out_dir / CHECKPOINT_DIR}")
     if not fitter.is_global_zero:  # another DDP rank: rank 0 writes the decoder folder
         return out_dir
-    train_seconds = time.time() - started
+    train_seconds, done_training = clock.seconds, time.time()
 
     model.cpu().eval()
     save_decoder(out_dir / DECODER_FILE, model.decoder, model.decoder_config)
@@ -75,9 +76,30 @@ def fit_decoder(
         "precision": str(fitter.precision),
         "devices": fitter.world_size,
         "train_seconds": round(train_seconds, 1),
-        "total_seconds": round(time.time() - started, 1),
+        "total_seconds": round(train_seconds + time.time() - done_training, 1),
     })
     return out_dir
+
+
+class TrainingClock(Callback):
+    """Seconds spent fitting, summed over every resumed segment (the sum travels in the checkpoints)."""
+
+    def __init__(self) -> None:
+        self.before = 0.0  # seconds of the segments before this one
+        self.started: float | None = None
+
+    def on_fit_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self.started = time.perf_counter()
+
+    @property
+    def seconds(self) -> float:
+        return self.before + (time.perf_counter() - self.started if self.started is not None else 0.0)
+
+    def state_dict(self) -> dict[str, float]:
+        return {"seconds": self.seconds}
+
+    def load_state_dict(self, state_dict: dict[str, float]) -> None:
+        self.before = float(state_dict.get("seconds", 0.0))
 
 
 def build_module(decoder: Mapping[str, Any], module: Mapping[str, Any] | None, num_shapes: int) -> AutoDecoderModule:

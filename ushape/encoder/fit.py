@@ -13,6 +13,7 @@ from lightning.pytorch.plugins.io import TorchCheckpointIO
 from omegaconf import OmegaConf
 
 from ushape import atomic
+from ushape.checkpoints import resume_point
 from ushape.data.render_dataset import EncoderDataModule
 from ushape.encoder.feature_cache import FeatureDataModule
 from ushape.encoder.module import EncoderModule
@@ -88,10 +89,10 @@ def fit_encoder(
         callbacks=[checkpoint, last, *([LearningRateMonitor("step")] if logger is not False else []), *(callbacks or [])],
         plugins=[AtomicCheckpointIO()],
     )
-    resume = ckpt_dir / LAST_FILE
-    if resume.exists():
+    resume = resume_point(ckpt_dir, LAST_FILE)
+    if resume is not None:
         log.info("resuming stage-2 training from %s", resume)
-    run.fit(model, datamodule=datamodule, ckpt_path=str(resume) if resume.exists() else None)
+    run.fit(model, datamodule=datamodule, ckpt_path=str(resume) if resume else None)
     best = checkpoint.best_model_path or last.best_model_path
     if not best:
         raise RuntimeError(f"training wrote no checkpoint into {ckpt_dir}; check trainer limits (max_epochs/max_steps)")
