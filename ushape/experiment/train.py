@@ -84,7 +84,7 @@ def _train(cfg: DictConfig, out_dir: Path, main: bool) -> float | None:
 
     world = build_world(cfg)
     decoder_dir = ensure_decoder(cfg, lambda folder: train_decoder(cfg, world, folder), main=main)
-    summary: dict[str, Any] = {"stage": cfg.stage, "world": str(world.root), "decoder_dir": str(decoder_dir)}
+    summary: dict[str, Any] = {"stage": cfg.stage, "world": str(world.root.resolve()), "decoder_dir": str(decoder_dir)}
     metric = None
     if cfg.stage == "encoder":
         coded_dir = ensure_codes(decoder_dir, cfg.stage2.get("codes", "autodecoder"), world.root, _plain(cfg.stage1.latent_optim))

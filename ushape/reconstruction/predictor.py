@@ -26,7 +26,8 @@ from omegaconf import OmegaConf
 from torch import Tensor, nn
 
 from ushape.data.augment import IMAGE_SUFFIXES, CompositeBackground, load_rgba, resize
-from ushape.experiment.summary import RUN_SUMMARY
+from ushape.checkpoints import load_checkpoint
+from ushape.experiment.summary import RUN_SUMMARY, relocated
 from ushape.recalibration.temperature import apply_temperature
 
 log = logging.getLogger(__name__)
@@ -34,7 +35,8 @@ log = logging.getLogger(__name__)
 TEMPERATURE_FILE = "temperature.json"
 HYDRA_CONFIG = Path(".hydra") / "config.yaml"
 RUNS_DIR = Path("outputs") / "runs"
-DEFAULT_CHECKPOINTS = (Path("checkpoints") / "best.ckpt", Path("checkpoints") / "last.ckpt")
+CHECKPOINT_DIR = "checkpoints"
+DEFAULT_CHECKPOINTS = (Path(CHECKPOINT_DIR) / "best.ckpt", Path(CHECKPOINT_DIR) / "last.ckpt")
 # An input whose longer side is more than this many times below the model's input size is warned about.
 SMALLEST_UPSCALE = 4
 NO_RUN_HINT = "train one with `make demo` / `python train.py experiment=quickstart`"
@@ -65,14 +67,30 @@ def resolve_checkpoint(source: str | Path) -> tuple[Path, Path | None]:
     if not source.is_dir():
         raise FileNotFoundError(f"{source} is neither a run folder nor a checkpoint file: {NO_RUN_HINT}")
     summary = source / RUN_SUMMARY
-    if summary.is_file():
-        recorded = json.loads(summary.read_text()).get("encoder_checkpoint")
-        if recorded and Path(recorded).is_file():
-            return Path(recorded), source
+    recorded = read_summary(source).get("encoder_checkpoint") if summary.is_file() else None
+    if recorded:
+        # This run's own checkpoints/ folder, wherever run.json was written: a copied or moved run
+        # must never evaluate the checkpoint of the folder it was copied from.
+        own = source / CHECKPOINT_DIR / Path(recorded).name
+        if not own.is_file():
+            raise FileNotFoundError(f"run folder {source} has no {CHECKPOINT_DIR}/{own.name}, the checkpoint its "
+                                    f"{RUN_SUMMARY} names (deleted, or the folder was copied without it): {NO_RUN_HINT}")
+        return own, source
     for name in DEFAULT_CHECKPOINTS:
         if (source / name).is_file():
             return source / name, source
     raise FileNotFoundError(f"run folder {source} holds no encoder checkpoint (checkpoints/best.ckpt): {NO_RUN_HINT}")
+
+
+def read_summary(run_dir: Path) -> dict:
+    """The run's run.json ({} without one); a damaged one is named."""
+    path = run_dir / RUN_SUMMARY
+    if not path.is_file():
+        return {}
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as err:
+        raise ValueError(f"{path} is damaged ({err}): rerun the training command to rewrite it") from err
 
 
 def temperature_path(checkpoint: str | Path) -> Path:
@@ -194,6 +212,20 @@ def collect_inputs(inputs: Iterable[str | Path]) -> list[Path]:
     return files
 
 
+def trained_decoder(blob: dict, checkpoint: Path, run_dir: Path | None) -> Path:
+    """The stage-1 decoder folder the encoder was trained against, found again if outputs/ moved."""
+    recorded = (blob.get("hyper_parameters") or {}).get("decoder_path")
+    if not recorded:
+        raise ValueError(f"checkpoint {checkpoint} records no decoder_path: not an encoder checkpoint of ushape")
+    path = relocated(recorded, run_dir)
+    if not path.exists():
+        raise FileNotFoundError(
+            f"the stage-1 decoder that {checkpoint} was trained against is gone: not at {recorded}"
+            + (" nor at the same place under the outputs/ folder holding the run" if run_dir else "")
+            + "; restore that folder (a retrained decoder would not match this encoder)")
+    return path
+
+
 def load_predictor(
     source: str | Path | None = None,
     temperature: bool = False,
@@ -207,12 +239,14 @@ def load_predictor(
 
     run_dir = latest_run(root) if source is None else None
     checkpoint, run_dir = resolve_checkpoint(run_dir or source)
-    blob = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    blob = load_checkpoint(checkpoint)
     config = run_config(run_dir)
     image_size, mask_mode = input_settings(blob, config)
-    model = EncoderModule.load_from_checkpoint(checkpoint, map_location="cpu", weights_only=False)
+    model = EncoderModule.load_from_checkpoint(checkpoint, map_location="cpu", weights_only=False,
+                                               decoder_path=str(trained_decoder(blob, checkpoint, run_dir)))
     model.eval()
-    summary = json.loads((run_dir / RUN_SUMMARY).read_text()) if run_dir and (run_dir / RUN_SUMMARY).is_file() else {}
+    summary = read_summary(run_dir) if run_dir else {}
+    world = relocated(summary["world"], run_dir) if summary.get("world") else None
     return Predictor(
         model=model,
         image_size=image_size,
@@ -220,5 +254,5 @@ def load_predictor(
         run_dir=run_dir,
         temperature=read_temperature(checkpoint) if temperature else None,
         mask_mode=mask_mode,
-        world=Path(summary["world"]) if summary.get("world") else None,
+        world=world,
     )
