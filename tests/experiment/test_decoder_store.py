@@ -6,7 +6,11 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
-from ushape.decoder.artifacts import DONE_FILE
+import torch
+from tiny_render_world import tiny_decoder_config
+
+from ushape.decoder.artifacts import DECODER_FILE, DONE_FILE, CodeTable, codes_file, save_codes, save_decoder
+from ushape.decoder.network import DeepSDFDecoder
 from ushape.experiment.decoder_store import decoder_dir_for, ensure_decoder
 
 
@@ -31,7 +35,16 @@ def _fake_train(folder: Path, log: Path | None = None, delay: float = 0.0):
     if log is not None:
         with open(log, "a") as fh:
             fh.write("trained\n")
+    _write_artifacts(folder)
     (folder / DONE_FILE).write_text("ok")
+
+
+def _write_artifacts(folder: Path) -> None:
+    """What stage 1 leaves: a (tiny, random) decoder and the three code tables; the store checks they load."""
+    config = tiny_decoder_config(4)
+    save_decoder(folder / DECODER_FILE, DeepSDFDecoder(**{k: v for k, v in config.items() if k != "_target_"}), config)
+    for split in ("train", "val", "test"):
+        save_codes(folder / codes_file(split), CodeTable([f"{split}_0"], torch.zeros(1, 4)))
 
 
 def test_reuse_and_identity(tmp_path):
@@ -104,3 +117,16 @@ def test_an_unfinished_decoder_of_the_older_identity_is_resumed_in_place(tmp_pat
     (old / "checkpoints").mkdir(parents=True)  # a stage 1 interrupted before the identity changed
     trained = []
     assert ensure_decoder(cfg, lambda d: (trained.append(d), _fake_train(d))) == old and trained == [old]
+
+
+def test_a_damaged_finished_decoder_is_rewritten_not_trusted(tmp_path, caplog):
+    """A truncated decoder.pt in a DONE folder gave every stage-2 run a raw unpickling traceback."""
+    cfg = _cfg(tmp_path)
+    folder = ensure_decoder(cfg, _fake_train)
+    decoder = folder / DECODER_FILE
+    decoder.write_bytes(decoder.read_bytes()[:100])
+    calls = []
+    with caplog.at_level("WARNING"):
+        assert ensure_decoder(cfg, lambda d: (calls.append(d), _fake_train(d))) == folder
+    assert calls == [folder] and f"stage-1 decoder {decoder} is damaged" in caplog.text
+    assert ensure_decoder(cfg, lambda d: calls.append(d)) == folder and len(calls) == 1  # intact again: reused

@@ -69,7 +69,7 @@ def load_decoder(path: str | Path, frozen: bool = True) -> nn.Module:
         path = path / DECODER_FILE
     if not path.exists():
         raise FileNotFoundError(f"no stage-1 decoder at {path}: train one with `python train.py stage=decoder`")
-    blob = torch.load(path, map_location="cpu", weights_only=False)
+    blob = _load(path, "stage-1 decoder")
     decoder = instantiate(blob["config"])
     decoder.load_state_dict(blob["state_dict"])
     if frozen:
@@ -86,8 +86,32 @@ def load_codes(path: str | Path) -> CodeTable:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"no code table at {path}: stage 1 writes it (`python train.py stage=decoder`)")
-    blob = torch.load(path, map_location="cpu", weights_only=False)
+    blob = _load(path, "code table")
     return CodeTable(list(blob["shape_ids"]), blob["codes"].float())
+
+
+def _load(path: Path, what: str) -> dict:
+    """torch.load of a stage-1 file; a damaged one is a ValueError naming it and how to repair it."""
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as err:  # noqa: BLE001  (torch and pickle raise many types on damaged files)
+        raise ValueError(f"{what} {path} is damaged ({type(err).__name__}: {err}); delete {DONE_FILE} in its folder "
+                         "and rerun: stage 1 resumes from its last checkpoint and rewrites it") from err
+    if not isinstance(blob, dict):
+        raise ValueError(f"{what} {path} is damaged (not a dict)")
+    return blob
+
+
+def folder_problem(folder: str | Path) -> str | None:
+    """Why a finished (DONE) decoder folder cannot be used, or None: its decoder and code tables must load."""
+    folder = Path(folder)
+    try:
+        load_decoder(folder)
+        for split in ("train", "val", "test"):
+            load_codes(folder / codes_file(split))
+    except (FileNotFoundError, ValueError, KeyError, RuntimeError) as err:
+        return str(err)
+    return None
 
 
 def derived_folder(out_dir: str | Path, build: Callable[[Path], None], what: str) -> Path:

@@ -19,7 +19,7 @@ from typing import Any, Callable, Mapping
 from filelock import FileLock
 from omegaconf import DictConfig, OmegaConf
 
-from ushape.decoder.artifacts import DONE_FILE
+from ushape.decoder.artifacts import DONE_FILE, folder_problem
 
 log = logging.getLogger(__name__)
 
@@ -95,8 +95,18 @@ def ensure_decoder(cfg: DictConfig, train: Callable[[Path], None], lock_timeout_
     rank 0's fit, which alone writes the folder), then waits for the folder to be complete.
     """
     folder = legacy_decoder_dir_for(cfg) or decoder_dir_for(cfg)
-    if is_complete(folder):
-        log.info("Reusing the stage-1 decoder in %s", folder)
+    if main and is_complete(folder):
+        problem = folder_problem(folder)
+        if problem is None:
+            log.info("Reusing the stage-1 decoder in %s", folder)
+            return folder
+        # Not trusted, not thrown away: rewritten from the last checkpoint (no epoch is trained again).
+        log.warning("the finished stage-1 decoder in %s is damaged (%s); rewriting it from its last checkpoint",
+                    folder, problem)
+        with FileLock(str(folder) + ".lock", timeout=lock_timeout_s):
+            if folder_problem(folder) is not None:
+                (folder / DONE_FILE).unlink(missing_ok=True)
+    elif is_complete(folder):
         return folder
     if not main:
         train(folder)
