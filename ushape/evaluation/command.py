@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import sys
 import time
 from pathlib import Path
 
@@ -12,7 +13,8 @@ from omegaconf import DictConfig, OmegaConf
 from ushape.evaluation.report import write_results
 from ushape.evaluation.runner import PROTOCOLS, Settings, evaluate_runs
 from ushape.evaluation.sources import resolve_runs
-from ushape.experiment.validation import check_config
+from ushape.experiment.summary import discard_if_bookkeeping_only
+from ushape.experiment.validation import ConfigError, check_config
 
 log = logging.getLogger(__name__)
 
@@ -69,8 +71,24 @@ def evaluated_world(cfg: DictConfig) -> str | None:
 
 
 def run_eval(cfg: DictConfig) -> float | None:
-    """Evaluate (or gather); returns the configured setting's mean multi-view IoU (what a sweeper maximises)."""
-    check_config(cfg)
+    """Evaluate (or gather); returns the configured setting's mean multi-view IoU (what a sweeper maximises).
+
+    A bad config is one error line and exit code 2; a failed evaluation leaves no empty Hydra folder.
+    """
+    hydra_dir = OmegaConf.select(cfg, "paths.output_dir", default=None, throw_on_resolution_failure=False)
+    try:
+        check_config(cfg)
+        return _evaluate(cfg)
+    except BaseException as err:
+        if hydra_dir is not None:
+            discard_if_bookkeeping_only(Path(hydra_dir))
+        if isinstance(err, ConfigError):
+            print(f"error: {err}", file=sys.stderr)
+            raise SystemExit(2) from None
+        raise
+
+
+def _evaluate(cfg: DictConfig) -> float | None:
     if cfg.get("gather"):
         from ushape.experiment.gather import gather
 

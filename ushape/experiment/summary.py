@@ -58,10 +58,11 @@ def discard_if_bookkeeping_only(run_dir: Path) -> bool:
     import shutil
 
     shutil.rmtree(run_dir, ignore_errors=True)
-    try:
-        run_dir.parent.rmdir()  # the day's folder, if this was its only run
-    except OSError:
-        pass
+    for parent in (run_dir.parent, run_dir.parent.parent):  # the day's folder and runs/, if now empty
+        try:
+            parent.rmdir()
+        except OSError:
+            break
     return True
 
 
