@@ -68,3 +68,10 @@ def test_a_truncated_checkpoint_is_named_not_a_traceback(outputs_layout, tmp_pat
     code = reconstruct_main([str(run / "nothing.png"), "--checkpoint", str(checkpoint), "--out", str(tmp_path / "r")])
     err = capsys.readouterr().err
     assert code == 2 and f"checkpoint {checkpoint} is damaged" in err and "Traceback" not in err
+
+
+def test_a_damaged_run_json_is_named(outputs_layout):
+    _, run = outputs_layout
+    (run / "run.json").write_text('{"stage": "encoder", "world": ')
+    with pytest.raises(ValueError, match=f"{run / 'run.json'} is damaged"):
+        load_predictor(run)
