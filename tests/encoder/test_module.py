@@ -118,12 +118,12 @@ def test_last_checkpoint_is_the_last_epoch_and_resume_continues_there(world, dec
                "enable_progress_bar": False, "enable_model_summary": False}
     kwargs = dict(encoder=tiny_encoder, loss=ES, module={"lr": 0.01, "val_samples": 8},
                   data={"image_size": 16, "batch_size": 4}, logger=False, monitor="step")  # min step: epoch 0 is best
-    best = fit_encoder(world, decoder_dir, run, trainer={**trainer, "max_epochs": 3}, **kwargs)
+    best = fit_encoder(world, decoder_dir, run, trainer={**trainer, "max_epochs": 2}, **kwargs)
     last = run / "checkpoints" / "last.ckpt"
     assert torch.load(best, map_location="cpu", weights_only=False)["epoch"] == 0
     blob = torch.load(last, map_location="cpu", weights_only=False)
-    assert (blob["epoch"], blob["global_step"]) == (2, 3)
-    fit_encoder(world, decoder_dir, run, trainer={**trainer, "max_epochs": 4}, **kwargs)  # one more epoch
+    assert (blob["epoch"], blob["global_step"]) == (1, 2)
+    fit_encoder(world, decoder_dir, run, trainer={**trainer, "max_epochs": 3}, **kwargs)  # one more epoch
     blob = torch.load(last, map_location="cpu", weights_only=False)
-    assert (blob["epoch"], blob["global_step"]) == (3, 4)
+    assert (blob["epoch"], blob["global_step"]) == (2, 3)
     assert sorted(p.name for p in last.parent.iterdir()) == ["best.ckpt", "last.ckpt"]
