@@ -88,3 +88,14 @@ def test_two_jobs_racing_for_one_world_build_it_once(tmp_path):
     assert made[0] == {}  # the job that waited found the world finished
     assert made[1]["shape"] == sum(TINY[k] for k in ("n_train", "n_val", "n_test"))
     assert np.all([job.exitcode == 0 for job in jobs])
+
+
+def test_a_read_only_world_is_checked_and_its_damage_named(tmp_path, monkeypatch):
+    """Shared data that this user cannot write: named, not repaired (no lock file can be made beside it)."""
+    index = tiny_world(tmp_path / "shared").build()
+    sdf = index.sdf_path(index.shape_ids("val")[0])
+    sdf.write_bytes(sdf.read_bytes()[:100])
+    monkeypatch.setattr("ushape.data.world.os.access", lambda path, mode: False)  # as a non-owner sees it
+    with pytest.raises(ValueError, match=f"read-only world .* {sdf} "):
+        open_world(index.root)
+    assert sdf.stat().st_size == 100  # untouched

@@ -11,6 +11,7 @@ import hashlib
 import importlib
 import json
 import logging
+import os
 import time
 import warnings
 from collections import Counter
@@ -24,7 +25,7 @@ from ushape import atomic
 from ushape.data.jobs import run_jobs
 from ushape.data import integrity
 from ushape.data.layout import SPLITS, WorldIndex, world_dir_name
-from ushape.data.shape_artifacts import ShapeFactory, ShapeJob, ShapeResult, build_shape
+from ushape.data.shape_artifacts import ShapeFactory, ShapeJob, ShapeResult, artifact_problems, build_shape
 
 log = logging.getLogger(__name__)
 
@@ -196,6 +197,13 @@ def open_world(root: str | Path) -> WorldIndex:
     world = SyntheticWorld.from_index(index)
     if world is None:
         log.info("%s is not a synthetic world this version can rebuild: its files are not checked here", index.root)
+        return index
+    if not os.access(index.root.parent, os.W_OK):  # shared read-only data: check, but repair nothing
+        problems = [f"{path} ({reason})" for sid in index.shape_ids()
+                    for path, reason in artifact_problems(index, sid).values()]
+        if problems:
+            raise ValueError(f"the read-only world {index.root} has {len(problems)} missing or corrupt files, e.g. "
+                             f"{'; '.join(problems[:3])}: copy it somewhere writable and evaluate the copy (it is repaired there)")
         return index
     return world.build()
 
