@@ -123,7 +123,13 @@ def test_last_checkpoint_is_the_last_epoch_and_resume_continues_there(world, dec
     assert torch.load(best, map_location="cpu", weights_only=False)["epoch"] == 0
     blob = torch.load(last, map_location="cpu", weights_only=False)
     assert (blob["epoch"], blob["global_step"]) == (1, 2)
-    fit_encoder(world, decoder_dir, run, trainer={**trainer, "max_epochs": 3}, **kwargs)  # one more epoch
+    started = []
+    counter = L.Callback()
+    counter.on_train_epoch_start = lambda trainer, module: started.append(trainer.current_epoch)
+    fit_encoder(world, decoder_dir, run, trainer={**trainer, "max_epochs": 3}, callbacks=[counter], **kwargs)
+    assert started == [2]  # one more epoch, from where last.ckpt left off
     blob = torch.load(last, map_location="cpu", weights_only=False)
     assert (blob["epoch"], blob["global_step"]) == (2, 3)
+    fit_encoder(world, decoder_dir, run, trainer={**trainer, "max_epochs": 3}, callbacks=[counter], **kwargs)
+    assert started == [2]  # a finished run rerun (a resumed sweep) trains nothing again
     assert sorted(p.name for p in last.parent.iterdir()) == ["best.ckpt", "last.ckpt"]

@@ -98,3 +98,14 @@ def test_signals_in_world_build_stage_1_and_stage_2_each_resume(tmp_path):
     assert "Training the stage-1 decoder" not in output  # the finished decoder is reused
     assert torch.load(encoder_last, map_location="cpu", weights_only=False)["epoch"] == epoch + 1
     assert (run_dir / "run.json").exists()
+
+
+def test_the_resume_command_writes_into_the_same_folders():
+    from ushape.experiment.interrupts import resume_command
+
+    run = Path("/o/outputs/runs/d/t_encoder")
+    assert resume_command(["train.py", "loss=nll"], run) == f"python train.py loss=nll hydra.run.dir={run}"
+    job = Path("/o/outputs/multirun/d/t/1_chairs_nll")  # a sweep's jobs keep their numbered folders
+    assert resume_command(["train.py", "-m", "loss=es,nll"], job) == \
+        "python train.py -m loss=es,nll hydra.sweep.dir=/o/outputs/multirun/d/t"
+    assert resume_command(["train.py", "hydra.run.dir=x y"], run) == "python train.py 'hydra.run.dir=x y'"

@@ -72,11 +72,15 @@ def stopping_signal(err: BaseException, watch: SignalWatch) -> int | None:
 
 
 def resume_command(argv: Sequence[str], run_dir: Path | None) -> str:
-    """The command line that resumes: the same one, in the same run folder (`hydra.run.dir`) if it is a single run."""
+    """The command line that resumes: the same one, writing into the same folders, the run's own
+    (`hydra.run.dir`) or, for a sweep, the sweep's (`hydra.sweep.dir`: its jobs keep their numbered
+    folders, so finished ones resume from their final checkpoint instead of training again)."""
     args = list(argv)
-    multirun = any(a in ("-m", "--multirun") for a in args)
-    if run_dir is not None and not multirun and not any(a.startswith("hydra.run.dir=") for a in args):
-        args.append(f"hydra.run.dir={run_dir}")
+    if run_dir is not None:
+        multirun = any(a in ("-m", "--multirun") for a in args)
+        key, folder = ("hydra.sweep.dir", run_dir.parent) if multirun else ("hydra.run.dir", run_dir)
+        if not any(a.startswith(f"{key}=") for a in args):
+            args.append(f"{key}={folder}")
     return shlex.join(["python", *args])
 
 
