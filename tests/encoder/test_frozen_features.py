@@ -69,3 +69,20 @@ def test_frozen_backbone_stays_in_eval_mode_and_out_of_the_optimiser(decoder_dir
     model.train()
     assert not model.encoder.backbone.training and model.encoder.head.training
     assert all(not p.requires_grad for p in model.encoder.backbone.parameters())
+
+
+def test_the_head_reads_frozen_features_standardised_by_the_training_views(world, decoder_dir, tiny_encoder, tmp_path):
+    encoder = _frozen(tiny_encoder)
+    trainer = {"accelerator": "cpu", "max_epochs": 1, "enable_progress_bar": False, "enable_model_summary": False}
+    best = fit_encoder(world, decoder_dir, tmp_path / "run", encoder, ES,
+                       data={"image_size": 16, "batch_size": 4, "cached_features": True, "train_passes": 2},
+                       trainer=trainer, logger=False)
+    model = EncoderModule.load_from_checkpoint(best)
+    cached = torch.load(next((world / "features").glob("train-*.pt")), weights_only=False)["features"]
+    assert torch.allclose(model.encoder.feature_mean, cached.mean(0), atol=1e-5)  # kept in the checkpoint
+    standardised = model.encoder.head_input(cached)
+    assert torch.allclose(standardised.mean(0), torch.zeros(cached.shape[1]), atol=1e-4)
+    image = torch.rand(1, 3, 16, 16)
+    with torch.no_grad():  # images end to end = the head on the standardised features of the same image
+        direct = model.encoder.head(model.encoder.head_input(model.encoder.features(image)))
+        assert torch.allclose(model.encoder(image)[0], direct[0])

@@ -43,7 +43,10 @@ def cached_feature_data(images: EncoderDataModule, model: EncoderModule, train_p
     if not model.encoder.freeze_backbone:
         raise ValueError("stage2.data.cached_features=true needs a frozen backbone: set encoder.freeze_backbone=true")
     identity = {"backbone": model.hparams.encoder["backbone"]}
-    return FeatureDataModule(images, model.encoder.features, identity, train_passes, images.hparams.batch_size)
+    data = FeatureDataModule(images, model.encoder.features, identity, train_passes, images.hparams.batch_size)
+    data.setup("fit")
+    model.encoder.standardise_with(data.datasets["train"].features)
+    return data
 
 
 def fit_encoder(

@@ -159,6 +159,10 @@ class ImageEncoder(nn.Module):
         if freeze_backbone:
             self.backbone.requires_grad_(False)
             self.backbone.eval()
+            # Frozen features are not scaled for a head (pooled stages differ by orders of magnitude):
+            # the head reads them standardised by the training views' statistics (`standardise_with`).
+            self.register_buffer("feature_mean", torch.zeros(self.feature_dim))
+            self.register_buffer("feature_std", torch.ones(self.feature_dim))
         self.register_buffer("pixel_mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("pixel_std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 
@@ -174,5 +178,17 @@ class ImageEncoder(nn.Module):
             raise ValueError(f"images must be RGB [B, 3, H, W] in [0, 1]; got {tuple(images.shape)}")
         return self.backbone((images - self.pixel_mean) / self.pixel_std).flatten(1)
 
+    def standardise_with(self, features: Tensor) -> None:
+        """Set the head's input statistics from training features [N, F] (frozen backbone only)."""
+        if not self.freeze_backbone:
+            raise ValueError("only a frozen backbone's features are standardised; its statistics would drift otherwise")
+        with torch.no_grad():
+            self.feature_mean.copy_(features.mean(0))
+            self.feature_std.copy_(features.std(0).clamp_min(1e-6))
+
+    def head_input(self, features: Tensor) -> Tensor:
+        """Backbone features [B, F] as the head reads them: standardised when the backbone is frozen."""
+        return (features - self.feature_mean) / self.feature_std if self.freeze_backbone else features
+
     def forward(self, images: Tensor) -> tuple[Tensor, Tensor]:
-        return self.head(self.features(images))
+        return self.head(self.head_input(self.features(images)))

@@ -128,7 +128,8 @@ class EncoderModule(L.LightningModule):
     def predict_batch(self, batch: dict) -> tuple[Tensor, Tensor]:
         """(mu, logvar) [B, D] of a batch of images, or of cached backbone features (FeatureDataModule)."""
         if "features" in batch:
-            return self._head_outputs(lambda: self.encoder.head(batch["features"]), batch["features"].device)
+            features = self.encoder.head_input(batch["features"])
+            return self._head_outputs(lambda: self.encoder.head(features), features.device)
         return self(batch["image"])
 
     def training_step(self, batch: dict, batch_idx: int) -> Tensor:
@@ -144,7 +145,7 @@ class EncoderModule(L.LightningModule):
 
     def _ensemble_loss(self, head: GaussianEnsemble, batch: dict) -> Tensor:
         """Mean over members of each member's loss on the shapes of its bootstrap share."""
-        features = batch["features"] if "features" in batch else self.encoder.features(batch["image"])
+        features = self.encoder.head_input(batch["features"] if "features" in batch else self.encoder.features(batch["image"]))
         mus, logvars = self._head_outputs(lambda: head.member_outputs(features), features.device)
         member_of = head.member_of(list(batch["shape_id"])).to(features.device)
         losses = [self.loss_fn(mu[rows], logvar[rows], batch["code"][rows])
@@ -156,7 +157,7 @@ class EncoderModule(L.LightningModule):
         mu, logvar = self.predict_batch(batch)
         generator = torch.Generator(device=mu.device).manual_seed(0)
         loss = self.loss_fn(mu, logvar, batch["code"], **({"generator": generator} if self._loss_takes_generator else {}))
-        self.log(f"{prefix}/loss", loss, prog_bar=True, batch_size=mu.shape[0])
+        self.log(f"{prefix}/loss", loss, prog_bar=True, batch_size=mu.shape[0], sync_dist=True)
         out = self._outputs
         for key, value in (("mu", mu), ("logvar", logvar), ("code", batch["code"])):
             out.setdefault(key, []).append(value.detach())
