@@ -51,3 +51,25 @@ def test_sweep_over_losses_trains_one_decoder_and_two_encoders(tmp_path):
         for folder in Path(s["meshes"]).iterdir():
             assert (folder / "mesh.ply").exists() or (folder / "empty_surface.txt").exists()
     assert "Reusing the stage-1 decoder" in result.stdout + result.stderr
+
+
+def test_frozen_recipe_shares_its_recoded_codes_and_cached_features_across_a_sweep(tmp_path):
+    """experiment=quickstart_frozen: training codes re-optimised once, view features encoded once, two encoders."""
+    env = {**os.environ, "USHAPE_ROOT": str(tmp_path)}
+    tiny = [a for a in TINY if a != "experiment=quickstart"]
+    result = subprocess.run(
+        [sys.executable, "train.py", "-m", "experiment=quickstart_frozen", "loss=es,l2", *tiny,
+         "stage2.data.train_passes=2", "encoder.hidden=16", "encoder.members=2", "stage2.demo_meshes.shapes=0"],
+        cwd=REPO, env=env, capture_output=True, text=True, timeout=600,
+    )
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    summaries = [json.loads(p.read_text()) for p in sorted((tmp_path / "outputs" / "multirun").glob("*/*/*/run.json"))]
+    assert len(summaries) == 2
+    coded = Path(summaries[0]["decoder_dir"]) / "codes_reoptimised"
+    assert (coded / "DONE").exists() and all(Path(s["latent_basis_dir"]) == coded for s in summaries)
+    world = Path(summaries[0]["world"])
+    assert len(list((world / "features").glob("train-*.pt"))) == 1  # the second job reused the first's cache
+    for s in summaries:
+        blob = torch.load(s["encoder_checkpoint"], map_location="cpu", weights_only=False)
+        assert Path(blob["hyper_parameters"]["decoder_path"]) == coded
+        assert blob["hyper_parameters"]["encoder"]["freeze_backbone"] is True

@@ -44,6 +44,7 @@ def loss_config(loss: LossFn | Mapping[str, Any]) -> dict[str, Any]:
 
 
 HEAD_INITS = ("fixed", "prior")
+OPTIMIZERS = ("sgd", "adam", "adamw")
 
 
 def code_prior(decoder_path: str | Path) -> tuple[Tensor, Tensor]:
@@ -88,8 +89,8 @@ class EncoderModule(L.LightningModule):
         head_init: str = "fixed",
     ) -> None:
         super().__init__()
-        if optimizer not in ("sgd", "adam"):
-            raise ValueError(f"optimizer must be 'sgd' or 'adam', got {optimizer!r}")
+        if optimizer not in OPTIMIZERS:
+            raise ValueError(f"optimizer must be one of {OPTIMIZERS}, got {optimizer!r}")
         if head_init not in HEAD_INITS:
             raise ValueError(f"head_init must be one of {HEAD_INITS}, got {head_init!r}")
         if OmegaConf.is_config(encoder):
@@ -222,8 +223,8 @@ class EncoderModule(L.LightningModule):
         params = [p for p in self.encoder.parameters() if p.requires_grad]  # a frozen backbone stays out
         if hp.optimizer == "sgd":
             opt = torch.optim.SGD(params, lr=hp.lr, momentum=hp.momentum, weight_decay=hp.weight_decay)
-        else:
-            opt = torch.optim.Adam(params, lr=hp.lr, weight_decay=hp.weight_decay)
+        else:  # adamw: decoupled weight decay, which regularises a head on frozen features without slowing Adam
+            opt = (torch.optim.AdamW if hp.optimizer == "adamw" else torch.optim.Adam)(params, lr=hp.lr, weight_decay=hp.weight_decay)
         total = self._total_steps()
         schedule = torch.optim.lr_scheduler.LambdaLR(opt, lambda k: max(0.0, 1.0 - k / total) ** hp.poly_power)
         return {"optimizer": opt, "lr_scheduler": {"scheduler": schedule, "interval": "step"}}
