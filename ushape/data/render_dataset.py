@@ -100,7 +100,20 @@ class RenderDataset(Dataset):
         return {"image": image, "code": self.codes[shape_id], "shape_id": shape_id, "view": view}
 
 
-class EncoderDataModule(L.LightningDataModule):
+class SplitLoaders:
+    """train/val/test dataloaders of a DataModule from its `_loader(split, shuffle)`."""
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader("train", shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader("val", shuffle=False)
+
+    def test_dataloader(self) -> DataLoader:
+        return self._loader("test", shuffle=False)
+
+
+class EncoderDataModule(SplitLoaders, L.LightningDataModule):
     """Train split with codes_train.pt and random augmentation; val/test with their codes, repeatable."""
 
     def __init__(
@@ -149,12 +162,3 @@ class EncoderDataModule(L.LightningDataModule):
             persistent_workers=hp.num_workers > 0,
             drop_last=shuffle and len(self.datasets[split]) > hp.batch_size,
         )
-
-    def train_dataloader(self) -> DataLoader:
-        return self._loader("train", shuffle=True)
-
-    def val_dataloader(self) -> DataLoader:
-        return self._loader("val", shuffle=False)
-
-    def test_dataloader(self) -> DataLoader:
-        return self._loader("test", shuffle=False)

@@ -25,7 +25,7 @@ from torch import Tensor
 from torch.utils.data import ConcatDataset, DataLoader, Dataset
 
 from ushape import atomic
-from ushape.data.render_dataset import EncoderDataModule, RenderDataset
+from ushape.data.render_dataset import EncoderDataModule, RenderDataset, SplitLoaders
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +55,7 @@ def encode_views(dataset: Dataset, features: Callable[[Tensor], Tensor], batch_s
     return torch.cat(parts).float()
 
 
-class FeatureDataModule(L.LightningDataModule):
+class FeatureDataModule(SplitLoaders, L.LightningDataModule):
     """The views of an EncoderDataModule as cached frozen-backbone features (module docstring).
 
     `features(images [B, 3, H, W]) -> [B, F]` is the frozen part of the encoder; `identity` names it
@@ -120,12 +120,3 @@ class FeatureDataModule(L.LightningDataModule):
         dataset = self.datasets[split]
         return DataLoader(dataset, batch_size=self.batch_size, shuffle=shuffle,
                           drop_last=shuffle and len(dataset) > self.batch_size)
-
-    def train_dataloader(self) -> DataLoader:
-        return self._loader("train", shuffle=True)
-
-    def val_dataloader(self) -> DataLoader:
-        return self._loader("val", shuffle=False)
-
-    def test_dataloader(self) -> DataLoader:
-        return self._loader("test", shuffle=False)
