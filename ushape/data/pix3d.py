@@ -176,8 +176,8 @@ def crop_resize(image: Image.Image, box: Sequence[float], size: int, fill: Any =
     return crop if side == size else crop.resize((size, size), Image.BILINEAR)
 
 
-def view_rgba(root: Path, entry: Pix3DEntry, size: int, margin: float) -> np.ndarray:
-    """RGBA uint8 [S,S,4] of one photo as a world view: its bbox crop, white outside the photo, alpha = GT mask."""
+def open_photo(root: Path, entry: Pix3DEntry) -> tuple[Image.Image, Image.Image]:
+    """(RGB photo, L ground-truth mask) of one entry, both checked to exist and to share a size."""
     img_path, mask_path = root / entry.img, root / entry.mask
     for path in (img_path, mask_path):
         if not path.is_file():
@@ -186,6 +186,12 @@ def view_rgba(root: Path, entry: Pix3DEntry, size: int, margin: float) -> np.nda
         rgb, mask = img.convert("RGB"), msk.convert("L")
     if mask.size != rgb.size:
         raise ValueError(f"{mask_path} is {mask.size}, but its image {img_path} is {rgb.size}")
+    return rgb, mask
+
+
+def view_rgba(root: Path, entry: Pix3DEntry, size: int, margin: float) -> np.ndarray:
+    """RGBA uint8 [S,S,4] of one photo as a world view: its bbox crop, white outside the photo, alpha = GT mask."""
+    rgb, mask = open_photo(root, entry)
     box = square_box(entry.bbox, margin)
     crop = crop_resize(rgb, box, size, fill=(255, 255, 255))
     crop.putalpha(crop_resize(mask, box, size, fill=0))
@@ -196,14 +202,7 @@ def load_crop(root: Path, entry: Pix3DEntry, size: int, margin: float, mask_mode
     """(premultiplied RGBA [4,S,S] in [0,1], ground-truth mask [1,S,S] in [0,1]) of one entry."""
     if mask_mode not in MASK_MODES:
         raise ValueError(f"mask_mode must be one of {MASK_MODES}, got {mask_mode!r}")
-    img_path, mask_path = root / entry.img, root / entry.mask
-    for path in (img_path, mask_path):
-        if not path.is_file():
-            raise FileNotFoundError(f"{path} is missing. Expected Pix3D's layout:\n{EXPECTED_LAYOUT}")
-    with Image.open(img_path) as img, Image.open(mask_path) as msk:
-        rgb, mask = img.convert("RGB"), msk.convert("L")
-    if mask.size != rgb.size:
-        raise ValueError(f"{mask_path} is {mask.size}, but its image {img_path} is {rgb.size}")
+    rgb, mask = open_photo(root, entry)
     alpha = mask if mask_mode == "gt_mask" else Image.new("L", rgb.size, 255)
     rgba = rgb.copy()
     rgba.putalpha(alpha)
