@@ -2,14 +2,12 @@
 categories end to end on CPU with tiny limits (the same commands a GPU run takes, minus the sizes)."""
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
+from repo_commands import run_command
 
 from ushape.experiment.train import stage_trainer
 
@@ -60,11 +58,7 @@ def test_stage1_trains_in_fp32_under_the_gpu_trainer():
 
 
 def test_paper_preset_trains_both_categories_end_to_end(tmp_path):
-    env = {**os.environ, "USHAPE_ROOT": str(tmp_path)}
-    result = subprocess.run(
-        [sys.executable, "train.py", "-m", "experiment=paper", "category=chairs,tables", *TINY_PAPER],
-        cwd=REPO, env=env, capture_output=True, text=True, timeout=600,
-    )
+    result = run_command(tmp_path, "train.py", "-m", "experiment=paper", "category=chairs,tables", *TINY_PAPER)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     summaries = [json.loads(p.read_text()) for p in sorted((tmp_path / "outputs" / "multirun").glob("*/*/*/run.json"))]
     assert len(summaries) == 2

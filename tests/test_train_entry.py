@@ -1,14 +1,10 @@
 """`python train.py -m ...` end to end on a tiny world: what a user types, in a subprocess."""
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import torch
-
-REPO = Path(__file__).resolve().parents[1]
+from repo_commands import run_command
 
 TINY = [
     "experiment=quickstart",
@@ -26,11 +22,7 @@ TINY = [
 
 def test_sweep_over_losses_trains_one_decoder_and_two_encoders(tmp_path):
     """Both encoders in the PCA latent basis: the rebased stage-1 folder is also written once and shared."""
-    env = {**os.environ, "USHAPE_ROOT": str(tmp_path)}
-    result = subprocess.run(
-        [sys.executable, "train.py", "-m", "loss=es,l2", "stage2.latent_basis=pca", *TINY],
-        cwd=REPO, env=env, capture_output=True, text=True, timeout=600,
-    )
+    result = run_command(tmp_path, "train.py", "-m", "loss=es,l2", "stage2.latent_basis=pca", *TINY)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     runs = sorted((tmp_path / "outputs" / "multirun").glob("*/*/*/run.json"))
     assert len(runs) == 2, runs
@@ -55,13 +47,10 @@ def test_sweep_over_losses_trains_one_decoder_and_two_encoders(tmp_path):
 
 def test_frozen_recipe_shares_its_recoded_codes_and_cached_features_across_a_sweep(tmp_path):
     """experiment=quickstart_frozen: training codes re-optimised once, view features encoded once, two encoders."""
-    env = {**os.environ, "USHAPE_ROOT": str(tmp_path)}
     tiny = [a for a in TINY if a != "experiment=quickstart"]
-    result = subprocess.run(
-        [sys.executable, "train.py", "-m", "experiment=quickstart_frozen", "loss=es,l2", *tiny,
-         "stage2.data.train_passes=2", "encoder.hidden=16", "encoder.members=2", "stage2.demo_meshes.shapes=0"],
-        cwd=REPO, env=env, capture_output=True, text=True, timeout=600,
-    )
+    result = run_command(tmp_path, "train.py", "-m", "experiment=quickstart_frozen", "loss=es,l2", *tiny,
+                         "stage2.data.train_passes=2", "encoder.hidden=16", "encoder.members=2",
+                         "stage2.demo_meshes.shapes=0")
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     summaries = [json.loads(p.read_text()) for p in sorted((tmp_path / "outputs" / "multirun").glob("*/*/*/run.json"))]
     assert len(summaries) == 2

@@ -1,15 +1,13 @@
 """Configs are checked once composed, before any work: bad values named at once, no traceback, no empty folder."""
 
-import os
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 from PIL import Image
+from repo_commands import run_command
 
 from ushape.evaluation.command import run_eval
 from ushape.experiment.validation import ConfigError, check_config
@@ -56,8 +54,7 @@ def test_reconstruct_with_k_0_is_one_line_not_a_traceback(tmp_path, capsys):
 
 def test_a_failed_run_leaves_no_folder(tmp_path):
     """`train.py stage=foo` printed a traceback and left an empty run folder behind."""
-    result = subprocess.run([sys.executable, "train.py", "stage=foo", "crop.min_scale=1.5"], cwd=REPO,
-                            env={**os.environ, "USHAPE_ROOT": str(tmp_path)}, capture_output=True, text=True, timeout=300)
+    result = run_command(tmp_path, "train.py", "stage=foo", "crop.min_scale=1.5", timeout=300)
     assert result.returncode == 2
     assert "Traceback" not in result.stderr
     assert "error: invalid config, nothing was run: stage='foo'" in result.stderr
