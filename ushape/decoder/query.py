@@ -9,6 +9,8 @@ import torch
 from torch import Tensor, nn
 from torch.nn.utils import parametrize
 
+from ushape.decoder.folded import fold_code
+
 
 def decoder_autocast(device: torch.device | str, enabled: bool) -> torch.autocast:
     """bf16 autocast for a decoder forward on `device` (CPU AMX/AVX-512 or CUDA); a no-op if disabled."""
@@ -17,11 +19,25 @@ def decoder_autocast(device: torch.device | str, enabled: bool) -> torch.autocas
 
 
 def code_sdf_fn(decoder: nn.Module, code: Tensor, bf16: bool = False) -> Callable[[Tensor], Tensor]:
-    """points [P, 3] -> sdf [P] (float32, on the points' device) of the decoder at code [D]."""
+    """points [P, 3] -> sdf [P] (float32, on the points' device) of the decoder at code [D].
+
+    A DeepSDFDecoder in eval mode is evaluated with the code folded in (`fold_code`) unless bf16 is
+    asked for; the weights are read when this is called, so call it after the decoder is trained.
+    """
     if code.ndim != 1:
         raise ValueError(f"code must be one latent vector [D], got {tuple(code.shape)}")
     device = next(decoder.parameters()).device
     code = code.detach().to(device)
+    folded = None if bf16 else fold_code(decoder, code)
+    if folded is not None:
+        dtype = decoder.layers[0].bias.dtype
+
+        def folded_sdf(points: Tensor) -> Tensor:
+            with torch.no_grad():
+                values = folded.sdf(points.to(device=device, dtype=dtype))
+            return values.float().to(points.device)
+
+        return folded_sdf
 
     def sdf(points: Tensor) -> Tensor:
         with torch.no_grad(), decoder_autocast(device, bf16):

@@ -7,6 +7,7 @@ from typing import Callable, ContextManager
 import torch
 from torch import Tensor, nn
 
+from ushape.decoder.folded import fold_code
 from ushape.decoder.query import decoder_autocast, frozen  # noqa: F401  (frozen: re-exported)
 from ushape.mesh.extraction import DEFAULT_CHUNK
 
@@ -50,7 +51,10 @@ def decode_points(
     chunk: int = DEFAULT_CHUNK,
     bf16: bool = False,
 ) -> Tensor:  # [P]
-    """SDF f(x, z) at every point for one latent code, in chunks of `chunk` points, without gradients."""
+    """SDF f(x, z) at every point for one latent code, in chunks of `chunk` points, without gradients.
+
+    A DeepSDFDecoder runs with the code folded in (`fold_code`, unless bf16): same values, less work.
+    """
     if z.ndim != 1:
         raise ValueError(f"z must be one latent code of shape [D], got {tuple(z.shape)}")
     if not torch.isfinite(z).all():
@@ -60,9 +64,10 @@ def decode_points(
     check_chunk(chunk)
     out = torch.empty(points.shape[0], dtype=output_dtype(points, bf16), device=points.device)
     with frozen(decoder), torch.no_grad(), autocast(bf16, points.device):
+        folded = None if bf16 else fold_code(decoder, z)
         for start in range(0, points.shape[0], chunk):
             block = points[start : start + chunk]
-            out[start : start + block.shape[0]] = decoder(block, z)
+            out[start : start + block.shape[0]] = decoder(block, z) if folded is None else folded.sdf(block)
     return out
 
 def output_dtype(points: Tensor, bf16: bool) -> torch.dtype:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from ushape.decoder.folded import fold_code
 from ushape.mesh.extraction import DEFAULT_CHUNK
 from ushape.propagation.decoding import (
     Decoder,
@@ -50,7 +51,8 @@ def propagate_linearised(
 
     Exact for a decoder linear in z; for the real decoder it is the local (delta-method)
     approximation, good while the latent spread stays where the decoder is near-linear.
-    Costs about one forward and one backward pass per chunk, however many samples MC would need.
+    Costs about one forward and one backward pass per chunk, however many samples MC would need;
+    a DeepSDFDecoder's backward is the hand-written one of `fold_code` (no autograd) unless bf16.
     """
     check_latent_gaussian(mu, var)
     check_code_size(decoder, mu.shape[0])
@@ -60,10 +62,15 @@ def propagate_linearised(
     mean = torch.empty(points.shape[0], dtype=dtype, device=points.device)
     variance = torch.empty_like(mean)
     with frozen(decoder):
+        folded = None if bf16 else fold_code(decoder, mu)
         for start in range(0, points.shape[0], chunk):
             block = points[start : start + chunk]
             stop = start + block.shape[0]
-            sdf, jacobian = latent_jacobian(decoder, mu, block, bf16)
+            if folded is None:
+                sdf, jacobian = latent_jacobian(decoder, mu, block, bf16)
+            else:
+                with torch.no_grad():
+                    sdf, jacobian = folded.sdf_and_jacobian(block)
             mean[start:stop] = sdf.to(dtype)
             variance[start:stop] = jacobian.to(dtype).square() @ var.to(dtype)
     return mean, variance

@@ -1,0 +1,66 @@
+"""The folded decoder gives the module's SDF and autograd's latent Jacobian, in float64 to roundoff."""
+
+import pytest
+import torch
+from torch import nn
+
+from ushape.decoder.folded import fold_code
+from ushape.decoder.network import DeepSDFDecoder
+from ushape.decoder.query import code_sdf_fn, frozen
+from ushape.propagation.linearised import latent_jacobian
+
+SHAPES = [
+    dict(latent_size=8, hidden_dims=(32, 32, 32, 32), latent_in=(2,), dropout=0.0, weight_norm=True),
+    dict(latent_size=5, hidden_dims=(16,) * 6, latent_in=(1, 4), dropout=0.2, weight_norm=True, output_tanh=False),
+    dict(latent_size=3, hidden_dims=(16, 16), latent_in=(), dropout=0.0, weight_norm=False),
+]
+
+
+def decoder_and_code(spec: dict, seed: int = 0) -> tuple[DeepSDFDecoder, torch.Tensor]:
+    torch.manual_seed(seed)
+    decoder = DeepSDFDecoder(**spec).double().eval()
+    with torch.no_grad():  # non-trivial weight-norm gains, so folding them in is tested
+        for name, param in decoder.named_parameters():
+            if name.endswith("original0"):
+                param.mul_(torch.rand_like(param) + 0.5)
+    return decoder, 0.3 * torch.randn(spec["latent_size"], dtype=torch.float64)
+
+
+@pytest.mark.parametrize("spec", SHAPES)
+def test_folded_sdf_and_jacobian_match_module_and_autograd(spec):
+    decoder, code = decoder_and_code(spec)
+    points = torch.rand(500, 3, dtype=torch.float64) * 2 - 1
+    with frozen(decoder):
+        folded = fold_code(decoder, code)
+        expected_sdf, expected_jacobian = latent_jacobian(decoder, code, points)
+        sdf, jacobian = folded.sdf_and_jacobian(points)
+        torch.testing.assert_close(folded.sdf(points), decoder(points, code), rtol=0, atol=1e-12)
+    torch.testing.assert_close(sdf, expected_sdf, rtol=0, atol=1e-12)
+    assert jacobian.shape == (500, spec["latent_size"])
+    torch.testing.assert_close(jacobian, expected_jacobian, rtol=1e-9, atol=1e-12)
+    assert jacobian.abs().max() > 1e-3  # a real Jacobian, not zeros
+
+
+def test_code_sdf_fn_uses_the_folded_decoder_and_returns_float32():
+    decoder, code = decoder_and_code(SHAPES[0])
+    points = torch.rand(100, 3, dtype=torch.float64) * 2 - 1
+    with frozen(decoder):
+        values = code_sdf_fn(decoder, code)(points)
+        expected = decoder(points, code)
+    assert values.dtype == torch.float32
+    torch.testing.assert_close(values, expected.float())
+
+
+class Scaled(DeepSDFDecoder):
+    def forward(self, xyz, z):
+        return 2 * super().forward(xyz, z)
+
+
+def test_what_cannot_be_folded_is_left_to_the_module():
+    decoder, code = decoder_and_code(SHAPES[1])  # dropout 0.2
+    assert fold_code(decoder.train(), code) is None  # dropout would be on
+    assert fold_code(decoder.eval(), code) is not None
+    assert fold_code(Scaled(latent_size=3, hidden_dims=(8, 8), latent_in=()), torch.zeros(3)) is None
+    assert fold_code(nn.Linear(3, 1), torch.zeros(3)) is None
+    with pytest.raises(ValueError, match=r"code must be \[5\]"):
+        fold_code(decoder.eval(), torch.zeros(4, dtype=torch.float64))
