@@ -2,7 +2,7 @@
 
     python reconstruct.py IMAGE [IMAGE ... | FOLDER] [--run RUN | --checkpoint CKPT] [--out DIR]
         [--fusion average|bayesian|bayesian_k] [--k 4] [--uncertainty mc|linearised]
-        [--resolution 128] [--temperature] [--std-max S] ...
+        [--resolution 128] [--depth-method implicit|mc] [--temperature] [--std-max S] ...
     python reconstruct.py --fit-temperature [--run RUN | --checkpoint CKPT]
 
 Without --run/--checkpoint the newest encoder run under ./outputs/runs is used. The fusion rule is
@@ -26,6 +26,7 @@ from omegaconf import OmegaConf
 from ushape.fusion.rules import check_k
 from ushape.mesh.extraction import EmptySurfaceError
 from ushape.propagation.mesh import METHODS
+from ushape.reconstruction.depth_implicit import DEPTH_METHODS
 from ushape.reconstruction.pipeline import ReconstructionSettings, reconstruct
 from ushape.reconstruction.predictor import collect_inputs, load_predictor
 from ushape.reconstruction.temperature_store import fit_and_store_temperature
@@ -68,7 +69,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--samples", type=int, default=10, help="codes for --uncertainty mc")
     parser.add_argument("--resolution", type=int, default=128, help="marching-cubes grid points per axis")
     parser.add_argument("--depth-size", type=int, default=64, help="depth-map pixels per side")
-    parser.add_argument("--depth-codes", type=int, default=10, help="codes M sphere-traced per depth map")
+    parser.add_argument("--depth-method", default="implicit", choices=DEPTH_METHODS,
+                        help="depth std: implicit (trace the mean code once, first order) or mc (trace M sampled codes)")
+    parser.add_argument("--depth-codes", type=int, default=10, help="codes M traced per depth map (--depth-method mc)")
     parser.add_argument("--std-max", type=float, default=None,
                         help="top of the colour scale (default: the 99th percentile of the mesh's stds)")
     parser.add_argument("--cmap", default="inferno", help="matplotlib colormap for the std colours")
@@ -92,8 +95,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         predictor = load_predictor(source, temperature=args.temperature, root=args.root)
         settings = ReconstructionSettings(
             resolution=args.resolution, uncertainty=args.uncertainty, n_samples=args.samples,
-            depth_size=args.depth_size, depth_codes=args.depth_codes, std_max=args.std_max, cmap=args.cmap,
-            seed=args.seed,
+            depth_size=args.depth_size, depth_method=args.depth_method, depth_codes=args.depth_codes,
+            std_max=args.std_max, cmap=args.cmap, seed=args.seed,
         )
         out = Path(args.out) if args.out else DEFAULT_OUT / time.strftime("%Y-%m-%d_%H-%M-%S")
         summary = reconstruct(predictor, files, fusion, out, settings)

@@ -70,7 +70,7 @@ def overview_figure(
 
 
 def depth_figure(image: Tensor, stats: DepthStats, path: str | Path, title: str = "") -> None:
-    """One view: its input, the expected depth and the depth std over sampled codes (NaN: no hit)."""
+    """One view: its input, the expected depth and its std (implicit or over sampled codes; NaN: no hit)."""
     fig, axes = plt.subplots(1, 3, figsize=(9.6, 3.2))
     axes[0].imshow(image.permute(1, 2, 0).clamp(0, 1).numpy())
     axes[0].set_title(title or "input", fontsize=9)

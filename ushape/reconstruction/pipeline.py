@@ -32,7 +32,8 @@ from ushape.propagation.mesh import METHODS, vertex_uncertainty
 from ushape.reconstruction.export import DEFAULT_CMAP, coloured_mesh, write_mesh_files
 from ushape.reconstruction.figures import depth_figure, overview_figure
 from ushape.reconstruction.predictor import Predictor
-from ushape.reconstruction.sphere_tracing import DepthStats, depth_uncertainty, sample_codes
+from ushape.reconstruction.depth_implicit import DEPTH_METHODS, depth_stats
+from ushape.reconstruction.sphere_tracing import DepthStats, sample_codes
 from ushape.reconstruction.visibility import hidden_over_visible
 
 CANONICAL_CAMERA = {"azimuth_deg": 45.0, "elevation_deg": 27.5, "distance": 2.8, "fov_deg": R2N2_FOV_DEG}
@@ -49,7 +50,8 @@ class ReconstructionSettings:
     uncertainty: str = "linearised"
     n_samples: int = 10  # codes for MC vertex uncertainty
     depth_size: int = 64
-    depth_codes: int = 10  # M codes sphere-traced per view
+    depth_method: str = "implicit"  # "implicit": trace the mean code once; "mc": trace depth_codes sampled codes
+    depth_codes: int = 10  # M codes sphere-traced per view by depth_method "mc"
     depth_steps: int = 50
     std_max: float | None = None
     cmap: str = DEFAULT_CMAP
@@ -95,6 +97,8 @@ def reconstruct(
     """Run the whole reconstruction of one object from its views and write every output; returns the summary."""
     if settings.uncertainty not in METHODS:
         raise ValueError(f"uncertainty must be one of {METHODS}, got {settings.uncertainty!r}")
+    if settings.depth_method not in DEPTH_METHODS:
+        raise ValueError(f"depth_method must be one of {DEPTH_METHODS}, got {settings.depth_method!r}")
     timer, generator = Timer(), torch.Generator().manual_seed(settings.seed)
     with timer("load_images"):
         images, paths, skipped = predictor.load_images(list(inputs))
@@ -137,18 +141,25 @@ def depth_maps(
     settings: ReconstructionSettings,
     generator: torch.Generator,
 ) -> list[dict[str, Any]]:
-    """Per view: sphere-traced depth mean/std of M codes from the fused Gaussian -> depth_<i>.npz/.png."""
-    codes = sample_codes(fused.mu, fused.var, settings.depth_codes, generator)
+    """Per view: depth mean/std of the fused Gaussian's surface -> depth_<i>.npz/.png.
+
+    settings.depth_method "implicit" traces the mean code and differentiates the hit depth (depth_implicit);
+    "mc" traces M = settings.depth_codes codes drawn once from the fused Gaussian (the same codes for every view).
+    """
+    mc = settings.depth_method == "mc"
+    codes = sample_codes(fused.mu, fused.var, settings.depth_codes, generator) if mc else None
     size = settings.depth_size
     records = []
     for i, (K, w2c, camera) in enumerate(cameras):
-        stats: DepthStats = depth_uncertainty(predictor.decoder, codes, K, w2c, (size, size), settings.depth_steps)
+        stats: DepthStats = depth_stats(predictor.decoder, fused.mu, fused.var, K, w2c, (size, size),
+                                        settings.depth_method, codes, settings.depth_steps)
         npz, png = out_dir / f"depth_{i:02d}.npz", out_dir / f"depth_{i:02d}.png"
         atomic.save_npz(npz, mean=stats.mean.numpy(), std=stats.std.numpy(), hit_rate=stats.hit_rate.numpy(),
                         K=K, world_to_cam=w2c)
-        depth_figure(images[i], stats, png, f"view {i} ({camera} camera)")
+        depth_figure(images[i], stats, png, f"view {i} ({camera} camera, {settings.depth_method})")
         hit = stats.hit_rate > 0
-        records.append({"camera": camera, "npz": str(npz), "png": str(png),
+        records.append({"camera": camera, "method": settings.depth_method,
+                        "codes": settings.depth_codes if mc else None, "npz": str(npz), "png": str(png),
                         "mean_depth_std": float(stats.std[hit].mean()) if hit.any() else None,
                         "hit_pixels": int(hit.sum())})
     return records
@@ -167,6 +178,7 @@ def write_summary(
         "temperature": predictor.temperature,
         "fusion": getattr(fusion, "name", type(fusion).__name__),
         "uncertainty": settings.uncertainty,
+        "depth_method": settings.depth_method,
         "settings": asdict(settings),
         "views": [
             {"image": str(p), "trace_var": float(var[i].sum()), "kept": i in kept, "depth": depth[i],

@@ -4,7 +4,8 @@ The paper's supplementary Fig. S1: draw M codes from the fused Gaussian, sphere-
 SDF along every pixel ray (batched over codes and pixels), and report per pixel the mean and the
 standard deviation of the depth over the codes whose ray hit the surface. Depth is the camera-frame
 z of the hit (OpenCV, as `ushape.data.rendering` writes it); rays are only traced inside the
-decoder's domain, the cube [-bound, bound]^3.
+decoder's domain, the cube [-bound, bound]^3. `depth_implicit` gets the std from one trace of the
+mean code instead (reconstruct.py's default); this Monte Carlo method stays as `--depth-method mc`.
 """
 
 from __future__ import annotations
@@ -96,6 +97,24 @@ def sample_codes(mu: Tensor, var: Tensor, n: int, generator: torch.Generator | N
     return mu + noise * var.sqrt()
 
 
+def camera_rays(
+    K: np.ndarray,  # [3, 3] for an image of image_hw
+    world_to_cam: np.ndarray,  # [4, 4]
+    image_hw: tuple[int, int],
+    steps: int,
+    eps: float,
+) -> tuple[Tensor, Tensor]:
+    """float32 world ray origins and directions [H*W, 3] of every pixel (camera-z component 1), inputs checked."""
+    K, world_to_cam = np.asarray(K, dtype=np.float64), np.asarray(world_to_cam, dtype=np.float64)
+    if K.shape != (3, 3) or world_to_cam.shape != (4, 4):
+        raise ValueError(f"expected K [3, 3] and world_to_cam [4, 4], got {K.shape} and {world_to_cam.shape}")
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+        raise ValueError(f"steps (sphere-tracing iterations) must be a positive integer, got {steps!r}")
+    if not eps > 0:
+        raise ValueError(f"eps (the |sdf| that counts as a hit) must be positive, got {eps!r}")
+    return tuple(torch.as_tensor(a, dtype=torch.float32) for a in pixel_rays(K, world_to_cam, image_hw))
+
+
 def depth_uncertainty(
     decoder: torch.nn.Module,
     codes: Tensor,  # [M, D]
@@ -106,7 +125,9 @@ def depth_uncertainty(
     eps: float = 2e-3,
 ) -> DepthStats:
     """Per-pixel depth mean and std [H, W] over the M codes' sphere-traced surfaces."""
-    origins, directions = (torch.as_tensor(a, dtype=torch.float32) for a in pixel_rays(K, world_to_cam, image_hw))
+    if codes.ndim != 2 or codes.shape[0] < 1:
+        raise ValueError(f"codes must be M >= 1 latent codes [M, D], got shape {tuple(codes.shape)}")
+    origins, directions = camera_rays(K, world_to_cam, image_hw, steps, eps)
     with frozen(decoder):
         t, hit = sphere_trace(codes_sdf(decoder, codes.float()), origins, directions, codes.shape[0], steps, eps)
     # pixel_rays' directions have camera-z component 1, so the ray parameter t is the depth itself.

@@ -1,0 +1,141 @@
+"""Per-pixel depth std by implicit differentiation: one sphere trace of the mean code and one Jacobian.
+
+At a pixel's hit x(t) = o + t d of the mean code's surface, s(x(t), z) = 0. Differentiating that
+identity in z gives the depth's sensitivity to the code,
+
+    dt/dz = -(ds/dz) / (ds/dx . d),
+
+and the first-order (delta-method) depth variance sum_k (dt/dz_k)^2 var_k, as
+`ushape.propagation.linearised` does for the SDF. pixel_rays' directions have camera-z component 1,
+so t is the depth. Exact where the depth is linear in the code (a plane whose offset is linear in
+z); elsewhere good while the latent spread moves the surface little, i.e. away from silhouettes.
+
+Grazing rays: as the ray turns tangent to the surface, ds/dx . d -> 0 and the first-order
+sensitivity diverges (the true depth there jumps between this surface and whatever lies behind
+it). The slope along the unit ray direction is therefore clamped to at least `min_cosine` times the
+gradient's norm, i.e. rays are treated as meeting the surface at no more than acos(min_cosine)
+(87 degrees for 0.05) from its normal; this caps the std at silhouette pixels, it does not fix it.
+
+Monte Carlo (`sphere_tracing.depth_uncertainty`, M traces) stays the other method, "mc".
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ushape.encoder.latent_metrics import spearman_correlation
+from ushape.mesh.extraction import DEFAULT_CHUNK
+from ushape.propagation.decoding import Decoder, check_code_size, check_latent_gaussian, frozen
+from ushape.reconstruction.sphere_tracing import DepthStats, camera_rays, codes_sdf, depth_uncertainty, sphere_trace
+
+DEPTH_METHODS = ("implicit", "mc")
+MIN_COSINE = 0.05
+
+
+def hit_gradients(
+    decoder: Decoder,
+    z: Tensor,  # [D]
+    points: Tensor,  # [P, 3]
+) -> tuple[Tensor, Tensor]:
+    """ds/dz [P, D] and ds/dx [P, 3] of the SDF f(x_p, z) at every point, in one forward/backward.
+
+    Each point gets its own copy of z as a leaf (as `latent_jacobian` does), so one backward of
+    sum_p s_p fills both Jacobians row by row. Call inside `frozen(decoder)`.
+    """
+    z_per_point = z.detach().expand(points.shape[0], z.shape[0]).clone().requires_grad_(True)
+    xyz = points.detach().clone().requires_grad_(True)
+    with torch.enable_grad():
+        sdf = decoder(xyz, z_per_point)
+        grad_z, grad_x = torch.autograd.grad(sdf.sum(), (z_per_point, xyz), allow_unused=True)
+    # A decoder that ignores the code (or space) has no graph to it: its derivative is 0.
+    grad_z = torch.zeros_like(z_per_point) if grad_z is None else grad_z
+    grad_x = torch.zeros_like(xyz) if grad_x is None else grad_x
+    return grad_z.detach(), grad_x.detach()
+
+
+def depth_sensitivity(
+    grad_z: Tensor,  # [P, D]
+    grad_x: Tensor,  # [P, 3]
+    directions: Tensor,  # [P, 3]
+    min_cosine: float = MIN_COSINE,
+) -> Tensor:  # [P, D]
+    """dt/dz = -(ds/dz) / (ds/dx . d) per hit, with |ds/dx . d| >= min_cosine |ds/dx| |d| (grazing clamp)."""
+    slope = (grad_x * directions).sum(dim=-1)  # ds/dt along the ray
+    floor = min_cosine * grad_x.norm(dim=-1) * directions.norm(dim=-1)
+    magnitude = torch.maximum(slope.abs(), floor).clamp_min(torch.finfo(slope.dtype).tiny)
+    # A ray entering the surface from outside sees the SDF fall (ds/dt < 0); a clamped 0 slope keeps that sign.
+    signed = torch.where(slope > 0, magnitude, -magnitude)
+    return -grad_z / signed[:, None]
+
+
+def depth_uncertainty_implicit(
+    decoder: Decoder,
+    mu: Tensor,  # [D]
+    var: Tensor,  # [D]
+    K: np.ndarray,  # [3, 3] for an image of image_hw
+    world_to_cam: np.ndarray,  # [4, 4]
+    image_hw: tuple[int, int],
+    steps: int = 50,
+    eps: float = 2e-3,
+    min_cosine: float = MIN_COSINE,
+    chunk: int = DEFAULT_CHUNK,
+) -> DepthStats:
+    """Depth of the mean code's surface and its first-order std [H, W]; hit_rate is 1 where it hit, else 0."""
+    check_latent_gaussian(mu, var)
+    check_code_size(decoder, mu.shape[0])
+    if not 0.0 <= min_cosine <= 1.0:
+        raise ValueError(f"min_cosine must be in [0, 1], got {min_cosine!r}")
+    origins, directions = camera_rays(K, world_to_cam, image_hw, steps, eps)
+    mu, var = mu.detach().float(), var.detach().float()
+    with frozen(decoder):
+        t, hit = sphere_trace(codes_sdf(decoder, mu[None]), origins, directions, 1, steps, eps)
+        t, hit = t[0], hit[0]
+        pixels = hit.nonzero().squeeze(1)
+        variance = torch.empty(pixels.shape[0])
+        for start in range(0, pixels.shape[0], chunk):
+            rays = pixels[start : start + chunk]
+            grad_z, grad_x = hit_gradients(decoder, mu, origins[rays] + t[rays, None] * directions[rays])
+            sensitivity = depth_sensitivity(grad_z.float(), grad_x.float(), directions[rays], min_cosine)
+            variance[start : start + rays.shape[0]] = sensitivity.square() @ var
+    mean = torch.where(hit, t, torch.full_like(t, float("nan")))
+    std = torch.full_like(t, float("nan"))
+    std[pixels] = variance.sqrt()
+    return DepthStats(mean.reshape(image_hw), std.reshape(image_hw), hit.float().reshape(image_hw))
+
+
+def depth_stats(
+    decoder: Decoder,
+    mu: Tensor,  # [D]
+    var: Tensor,  # [D]
+    K: np.ndarray,  # [3, 3]
+    world_to_cam: np.ndarray,  # [4, 4]
+    image_hw: tuple[int, int],
+    method: str = "implicit",
+    codes: Tensor | None = None,  # [M, D] drawn from N(mu, var), for method "mc"
+    steps: int = 50,
+) -> DepthStats:
+    """Depth mean/std [H, W] of one camera by either method: "implicit" (mu, var) or "mc" (the codes)."""
+    if method == "implicit":
+        return depth_uncertainty_implicit(decoder, mu, var, K, world_to_cam, image_hw, steps)
+    if method == "mc":
+        if codes is None:
+            raise ValueError("depth method 'mc' traces sampled codes: pass codes [M, D] (see sample_codes)")
+        return depth_uncertainty(decoder, codes, K, world_to_cam, image_hw, steps)
+    raise ValueError(f"depth method must be one of {DEPTH_METHODS}, got {method!r}")
+
+
+def std_agreement(implicit: DepthStats, mc: DepthStats) -> dict[str, float | int]:
+    """Median of std implicit / MC, and Pearson and Spearman correlations of the two std maps, over pixels
+    hit by the mean code and by every sampled code (partial MC hits are silhouettes, where neither std
+    means much). Pearson is swayed by the few pixels where one code reaches another part of the surface;
+    the rank correlation is not."""
+    both = (implicit.hit_rate > 0) & (mc.hit_rate == 1) & (mc.std > 0)
+    a, b = implicit.std[both].double(), mc.std[both].double()
+    n = int(both.sum())
+    ratio = float((a / b).median()) if n else float("nan")
+    varied = n > 1 and bool(a.std() > 0) and bool(b.std() > 0)  # a constant map has no correlation
+    pearson = float(torch.corrcoef(torch.stack([a, b]))[0, 1]) if varied else float("nan")
+    spearman = float(spearman_correlation(a, b)) if varied else float("nan")
+    return {"median_ratio": ratio, "pearson": pearson, "spearman": spearman, "pixels": n}
