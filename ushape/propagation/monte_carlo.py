@@ -49,7 +49,21 @@ def propagate_mc(
     check_code_size(decoder, mu.shape[0])
     check_points(points)
     check_chunk(chunk)
-    codes = sample_codes(mu, var, n_samples, generator).unsqueeze(1)  # [M, 1, D]
+    codes = sample_codes(mu, var, n_samples, generator)
+    return code_statistics(decoder, codes, points, chunk, bf16, return_samples)
+
+
+def code_statistics(
+    decoder: Decoder,
+    codes: Tensor,  # [M, D]
+    points: Tensor,  # [P, 3]
+    chunk: int = 512,
+    bf16: bool = False,
+    return_samples: bool = False,
+) -> tuple[Tensor, Tensor] | tuple[Tensor, Tensor, Tensor]:
+    """SDF mean [P] and unbiased variance [P] over the given codes (and the samples [M, P] if asked)."""
+    n_samples = codes.shape[0]
+    codes = codes.unsqueeze(1)  # [M, 1, D]
     dtype = output_dtype(points, bf16)
     n_points = points.shape[0]
     mean = torch.empty(n_points, dtype=dtype, device=points.device)

@@ -1,0 +1,58 @@
+"""The narrow-band field equals the dense one wherever it computes, and costs a fraction of it."""
+
+import pytest
+import torch
+
+from ushape.decoder.analytic import EllipsoidDecoder
+from ushape.mesh.extraction import marching_cubes
+from ushape.propagation.band import narrow_band_field
+from ushape.propagation.mesh import field_uncertainty
+
+N = 49
+
+
+@pytest.fixture
+def gaussian():
+    mu = torch.tensor([0.2, -0.1, 0.4])
+    var = torch.tensor([0.05, 0.01, 0.02])
+    return mu, var
+
+
+def test_linearised_band_equals_the_dense_field_where_computed(gaussian):
+    decoder, (mu, var) = EllipsoidDecoder(), gaussian
+    band = narrow_band_field(decoder, mu, var, N, "linearised", coarse_resolution=13)
+    mean, variance = field_uncertainty(decoder, mu, var, N, "linearised")
+    assert band.evaluations == int(band.band.sum())
+    assert band.evaluations < 0.35 * N**3  # only the coarse grid and the surface's neighbourhood
+    torch.testing.assert_close(band.mean[band.band], mean[band.band], rtol=0, atol=1e-6)
+    torch.testing.assert_close(band.variance[band.band], variance[band.band], rtol=1e-5, atol=1e-9)
+    # Every cell that holds surface was computed, so marching cubes sees the dense mesh.
+    crossing = (mean[:-1, :-1, :-1].sign() != mean[1:, 1:, 1:].sign())
+    assert band.band[:-1, :-1, :-1][crossing].all()
+    dense_mesh, band_mesh = marching_cubes(mean), marching_cubes(band.mean)
+    assert len(band_mesh.vertices) == len(dense_mesh.vertices)
+    torch.testing.assert_close(torch.as_tensor(band_mesh.vertices), torch.as_tensor(dense_mesh.vertices),
+                               rtol=0, atol=1e-5)
+    # Far from the surface the variance is interpolated from the coarse grid: close, not equal.
+    far = ~band.band
+    relative = (band.variance[far] - variance[far]).abs() / variance[far].clamp_min(1e-12)
+    assert far.any() and relative.median() < 0.05
+
+
+def test_mc_band_uses_the_same_codes_as_the_dense_mc_field(gaussian):
+    decoder, (mu, var) = EllipsoidDecoder(), gaussian
+    band = narrow_band_field(decoder, mu, var, N, "mc", n_samples=8, generator=torch.Generator().manual_seed(3),
+                             coarse_resolution=13)
+    mean, variance = field_uncertainty(decoder, mu, var, N, "mc", n_samples=8,
+                                       generator=torch.Generator().manual_seed(3))
+    torch.testing.assert_close(band.mean[band.band], mean[band.band], rtol=0, atol=1e-6)
+    torch.testing.assert_close(band.variance[band.band], variance[band.band], rtol=1e-5, atol=1e-9)
+    assert band.variance[band.band].max() > 1e-4  # the codes differ, so there is a variance to compare
+
+
+def test_bad_method_and_sample_count_are_refused(gaussian):
+    mu, var = gaussian
+    with pytest.raises(ValueError, match="unknown propagation method"):
+        narrow_band_field(EllipsoidDecoder(), mu, var, N, "unscented")
+    with pytest.raises(ValueError, match="n_samples"):
+        narrow_band_field(EllipsoidDecoder(), mu, var, N, "mc", n_samples=1)
