@@ -173,13 +173,20 @@ def test_depth_stats_dispatches_and_bad_input_is_a_value_error():
     K, w2c = look_at(0.0, 0.0, 3.0, 40.0, 9)
     mu, var = MU, VAR
     codes = sample_codes(mu, var, 3, torch.Generator().manual_seed(0))
-    implicit = depth_stats(PlaneDecoder(), mu, var, K, w2c, (9, 9), "implicit")
-    mc = depth_stats(PlaneDecoder(), mu, var, K, w2c, (9, 9), "mc", codes)
-    assert implicit.mean.shape == mc.mean.shape == (9, 9)
+    K2, w2c2 = look_at(30.0, 10.0, 3.0, 40.0, 9)
+    implicit = depth_stats(PlaneDecoder(), mu, var, [(K, w2c), (K2, w2c2)], (9, 9), "implicit")
+    mc = depth_stats(PlaneDecoder(), mu, var, [(K, w2c), (K2, w2c2)], (9, 9), "mc", codes)
+    assert len(implicit) == len(mc) == 2 and implicit[1].mean.shape == mc[1].mean.shape == (9, 9)
+    # tracing both views together gives each view what tracing it alone does
+    alone = depth_uncertainty_implicit(PlaneDecoder(), mu, var, K2, w2c2, (9, 9))
+    for together, single in zip(implicit[1], alone):
+        assert torch.equal(together.isnan(), single.isnan()) and torch.allclose(together.nan_to_num(), single.nan_to_num())
     with pytest.raises(ValueError, match="must be one of"):
-        depth_stats(PlaneDecoder(), mu, var, K, w2c, (9, 9), "linear")
+        depth_stats(PlaneDecoder(), mu, var, [(K, w2c)], (9, 9), "linear")
     with pytest.raises(ValueError, match="pass codes"):
-        depth_stats(PlaneDecoder(), mu, var, K, w2c, (9, 9), "mc")
+        depth_stats(PlaneDecoder(), mu, var, [(K, w2c)], (9, 9), "mc")
+    with pytest.raises(ValueError, match="no cameras"):
+        depth_stats(PlaneDecoder(), mu, var, [], (9, 9))
     with pytest.raises(ValueError, match="var must be >= 0"):
         depth_uncertainty_implicit(PlaneDecoder(), mu, -var, K, w2c, (9, 9))
     with pytest.raises(ValueError, match="the decoder takes 3"):

@@ -21,6 +21,8 @@ Monte Carlo (`sphere_tracing.depth_uncertainty`, M traces) stays the other metho
 
 from __future__ import annotations
 
+from typing import Sequence
+
 import numpy as np
 import torch
 from torch import Tensor
@@ -32,6 +34,7 @@ from ushape.reconstruction.sphere_tracing import DepthStats, camera_rays, codes_
 
 DEPTH_METHODS = ("implicit", "mc")
 MIN_COSINE = 0.05
+Camera = tuple[np.ndarray, np.ndarray]  # (K [3, 3], world_to_cam [4, 4])
 
 
 def hit_gradients(
@@ -70,6 +73,48 @@ def depth_sensitivity(
     return -grad_z / signed[:, None]
 
 
+def depth_uncertainty_implicit_views(
+    decoder: Decoder,
+    mu: Tensor,  # [D]
+    var: Tensor,  # [D]
+    cameras: Sequence[Camera],  # V x (K [3, 3] for an image of image_hw, world_to_cam [4, 4])
+    image_hw: tuple[int, int],
+    steps: int = 50,
+    eps: float = 2e-3,
+    min_cosine: float = MIN_COSINE,
+    chunk: int = DEFAULT_CHUNK,
+) -> list[DepthStats]:
+    """Per view, the depth of the mean code's surface and its first-order std [H, W]; hit_rate 1 (hit) or 0.
+
+    Every view's rays are traced together: one decoder call per step serves all of them, which is
+    what makes one trace of V views cheaper than V traces (most steps march only a few rays).
+    """
+    check_latent_gaussian(mu, var)
+    check_code_size(decoder, mu.shape[0])
+    if not 0.0 <= min_cosine <= 1.0:
+        raise ValueError(f"min_cosine must be in [0, 1], got {min_cosine!r}")
+    if len(cameras) == 0:
+        raise ValueError("no cameras: pass at least one (K, world_to_cam)")
+    rays = [camera_rays(K, w2c, image_hw, steps, eps) for K, w2c in cameras]
+    origins, directions = torch.cat([o for o, _ in rays]), torch.cat([d for _, d in rays])
+    mu, var = mu.detach().float(), var.detach().float()
+    with frozen(decoder):
+        t, hit = sphere_trace(codes_sdf(decoder, mu[None]), origins, directions, 1, steps, eps)
+        t, hit = t[0], hit[0]
+        pixels = hit.nonzero().squeeze(1)
+        variance = torch.empty(pixels.shape[0])
+        for start in range(0, pixels.shape[0], chunk):
+            ray = pixels[start : start + chunk]
+            grad_z, grad_x = hit_gradients(decoder, mu, origins[ray] + t[ray, None] * directions[ray])
+            sensitivity = depth_sensitivity(grad_z.float(), grad_x.float(), directions[ray], min_cosine)
+            variance[start : start + ray.shape[0]] = sensitivity.square() @ var
+    mean = torch.where(hit, t, torch.full_like(t, float("nan")))
+    std = torch.full_like(t, float("nan"))
+    std[pixels] = variance.sqrt()
+    maps = (m.reshape(len(cameras), *image_hw) for m in (mean, std, hit.float()))
+    return [DepthStats(*view) for view in zip(*maps)]
+
+
 def depth_uncertainty_implicit(
     decoder: Decoder,
     mu: Tensor,  # [D]
@@ -82,47 +127,29 @@ def depth_uncertainty_implicit(
     min_cosine: float = MIN_COSINE,
     chunk: int = DEFAULT_CHUNK,
 ) -> DepthStats:
-    """Depth of the mean code's surface and its first-order std [H, W]; hit_rate is 1 where it hit, else 0."""
-    check_latent_gaussian(mu, var)
-    check_code_size(decoder, mu.shape[0])
-    if not 0.0 <= min_cosine <= 1.0:
-        raise ValueError(f"min_cosine must be in [0, 1], got {min_cosine!r}")
-    origins, directions = camera_rays(K, world_to_cam, image_hw, steps, eps)
-    mu, var = mu.detach().float(), var.detach().float()
-    with frozen(decoder):
-        t, hit = sphere_trace(codes_sdf(decoder, mu[None]), origins, directions, 1, steps, eps)
-        t, hit = t[0], hit[0]
-        pixels = hit.nonzero().squeeze(1)
-        variance = torch.empty(pixels.shape[0])
-        for start in range(0, pixels.shape[0], chunk):
-            rays = pixels[start : start + chunk]
-            grad_z, grad_x = hit_gradients(decoder, mu, origins[rays] + t[rays, None] * directions[rays])
-            sensitivity = depth_sensitivity(grad_z.float(), grad_x.float(), directions[rays], min_cosine)
-            variance[start : start + rays.shape[0]] = sensitivity.square() @ var
-    mean = torch.where(hit, t, torch.full_like(t, float("nan")))
-    std = torch.full_like(t, float("nan"))
-    std[pixels] = variance.sqrt()
-    return DepthStats(mean.reshape(image_hw), std.reshape(image_hw), hit.float().reshape(image_hw))
+    """Depth of the mean code's surface and its first-order std [H, W] for one camera (see the _views form)."""
+    return depth_uncertainty_implicit_views(decoder, mu, var, [(K, world_to_cam)], image_hw, steps, eps,
+                                            min_cosine, chunk)[0]
 
 
 def depth_stats(
     decoder: Decoder,
     mu: Tensor,  # [D]
     var: Tensor,  # [D]
-    K: np.ndarray,  # [3, 3]
-    world_to_cam: np.ndarray,  # [4, 4]
+    cameras: Sequence[Camera],  # V x (K [3, 3], world_to_cam [4, 4])
     image_hw: tuple[int, int],
     method: str = "implicit",
     codes: Tensor | None = None,  # [M, D] drawn from N(mu, var), for method "mc"
     steps: int = 50,
-) -> DepthStats:
-    """Depth mean/std [H, W] of one camera by either method: "implicit" (mu, var) or "mc" (the codes)."""
+) -> list[DepthStats]:
+    """Depth mean/std [H, W] per camera by either method: "implicit" (mu, var; one trace for all views)
+    or "mc" (the codes, traced view by view)."""
     if method == "implicit":
-        return depth_uncertainty_implicit(decoder, mu, var, K, world_to_cam, image_hw, steps)
+        return depth_uncertainty_implicit_views(decoder, mu, var, cameras, image_hw, steps)
     if method == "mc":
         if codes is None:
             raise ValueError("depth method 'mc' traces sampled codes: pass codes [M, D] (see sample_codes)")
-        return depth_uncertainty(decoder, codes, K, world_to_cam, image_hw, steps)
+        return [depth_uncertainty(decoder, codes, K, w2c, image_hw, steps) for K, w2c in cameras]
     raise ValueError(f"depth method must be one of {DEPTH_METHODS}, got {method!r}")
 
 

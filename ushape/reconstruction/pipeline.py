@@ -143,16 +143,16 @@ def depth_maps(
 ) -> list[dict[str, Any]]:
     """Per view: depth mean/std of the fused Gaussian's surface -> depth_<i>.npz/.png.
 
-    settings.depth_method "implicit" traces the mean code and differentiates the hit depth (depth_implicit);
-    "mc" traces M = settings.depth_codes codes drawn once from the fused Gaussian (the same codes for every view).
+    settings.depth_method "implicit" traces the mean code for all views at once and differentiates the hit
+    depth (depth_implicit); "mc" traces M = settings.depth_codes codes drawn once from the fused Gaussian (the same codes for every view).
     """
     mc = settings.depth_method == "mc"
     codes = sample_codes(fused.mu, fused.var, settings.depth_codes, generator) if mc else None
     size = settings.depth_size
+    views: list[DepthStats] = depth_stats(predictor.decoder, fused.mu, fused.var, [c[:2] for c in cameras],
+                                          (size, size), settings.depth_method, codes, settings.depth_steps)
     records = []
-    for i, (K, w2c, camera) in enumerate(cameras):
-        stats: DepthStats = depth_stats(predictor.decoder, fused.mu, fused.var, K, w2c, (size, size),
-                                        settings.depth_method, codes, settings.depth_steps)
+    for i, ((K, w2c, camera), stats) in enumerate(zip(cameras, views)):
         npz, png = out_dir / f"depth_{i:02d}.npz", out_dir / f"depth_{i:02d}.png"
         atomic.save_npz(npz, mean=stats.mean.numpy(), std=stats.std.numpy(), hit_rate=stats.hit_rate.numpy(),
                         K=K, world_to_cam=w2c)
