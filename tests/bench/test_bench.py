@@ -12,7 +12,9 @@ DECODER_ROWS = [
     "decoder field fp32", "decoder field bf16", "marching cubes", "mesh dense (field + MC)", "mesh coarse-to-fine",
     "vertex uncertainty mc M=10", "vertex uncertainty linearised", "field uncertainty mc M=10",
     "field uncertainty linearised", "mesh with uncertainty (coarse-to-fine + vertex linearised)",
-    "mesh with uncertainty (coarse-to-fine + vertex mc M=10)",
+    "mesh with uncertainty (coarse-to-fine + vertex mc M=10)", "field uncertainty linearised narrow band",
+    "field uncertainty mc M=10 narrow band", "depth uncertainty mc M=10 (2 views)",
+    "depth uncertainty implicit (2 views)",
 ]
 
 
@@ -23,7 +25,7 @@ def _seconds(cell):
 
 def test_quick_bench_writes_the_whole_table(tmp_path, capsys):
     out = tmp_path / "bench.md"
-    assert main(["--quick", "--resolution", "16", "--deepsdf-fraction", "0.25", "--out", str(out)]) == 0
+    assert main(["--quick", "--resolution", "16", "--deepsdf-fraction", "0.25", "--depth-views", "2", "--out", str(out)]) == 0
     text = out.read_text()
     assert text in capsys.readouterr().out
     rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]] for line in text.splitlines()
@@ -36,8 +38,10 @@ def test_quick_bench_writes_the_whole_table(tmp_path, capsys):
     assert _seconds(rows["fusion bayesian"][0]) > 0 and rows["fusion bayesian"][1] == "0.1 ms"
     assert re.search(r"< 0\.1 ms (pass|miss)", rows["fusion bayesian"][2])
     ratios = [line for line in text.splitlines() if line.startswith("| ") and "x |" in line]
-    assert len(ratios) == 12  # 6 ratios x 2 decoders
-    assert sum(("pass" in r) or ("miss" in r) for r in ratios) == 8
+    assert len(ratios) == 18  # 9 ratios x 2 decoders
+    assert sum(("pass" in r) or ("miss" in r) for r in ratios) == 10  # 5 with a target x 2 decoders
+    assert "points computed" in rows["field uncertainty linearised narrow band"][3]
+    assert "faster than MC M=10" in rows["depth uncertainty implicit (2 views)"][3]
 
 
 def test_ratios_and_verdicts_from_known_timings():
@@ -46,11 +50,17 @@ def test_ratios_and_verdicts_from_known_timings():
         Measurement("mesh dense (field + MC)", 1.2), Measurement("mesh coarse-to-fine", 0.4),
         Measurement("vertex uncertainty mc M=10", 0.2), Measurement("vertex uncertainty linearised", 0.02),
         Measurement("field uncertainty mc M=10", 10.0), Measurement("field uncertainty linearised", 1.5),
+        Measurement("field uncertainty linearised narrow band", 0.15),
+        Measurement("field uncertainty mc M=10 narrow band", 0.6),
+        Measurement("depth uncertainty mc M=10 (12 views)", 9.0), Measurement("depth uncertainty implicit (12 views)", 1.0),
     ])
     got = {name: (value, passed) for name, value, _, passed in ratio_rows(bench)}
     assert got["coarse-to-fine mesh / dense mesh"] == (0.4 / 1.2, None)
     assert got["field w/ unc (linearised) / field"] == (1.5, True)
-    assert got["field w/ unc (MC M=10) / field"] == (10.0, False)
+    assert got["field w/ unc (MC M=10) / field"] == (10.0, None)
+    assert got["narrow-band field w/ unc (linearised) / field"] == (0.15, True)
+    assert got["narrow-band field w/ unc (MC M=10) / field"] == (0.6, None)
+    assert got["depth unc MC M=10 / implicit (speed-up)"] == (9.0, False)
     assert got["mesh w/ unc (linearised) / mesh, coarse-to-fine"][1] is True  # 1.05x
     assert got["mesh w/ unc (MC M=10) / mesh, coarse-to-fine"][1] is False  # 1.5x
     assert got["field bf16 / field fp32"] == (0.5, None)
@@ -63,3 +73,27 @@ def test_random_decoder_is_shifted_to_have_a_surface():
     field = decode_field(decoder, code, 16)
     assert provenance == "random weights" and (field < 0).any() and (field > 0).any()
     assert abs(float(field.median())) < 0.05 and code.shape == (64,)
+
+
+def test_fitted_decoder_has_the_chair_surface_and_is_cached(tmp_path):
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+
+    from ushape.bench.fitted import chair_samples, fitted_decoder
+
+    config = OmegaConf.create({"_target_": "ushape.decoder.network.DeepSDFDecoder", "latent_size": 4,
+                               "hidden_dims": [32, 32], "latent_in": [], "dropout": 0.0})
+    code = torch.zeros(4)
+    points, sdf = chair_samples(0)
+    first, provenance = fitted_decoder(config, code, 150, tmp_path)
+    assert "L1" in provenance and len(list(tmp_path.glob("fitted-*.pt"))) == 1
+    with torch.no_grad():
+        error = (first(points, code).clamp(-0.1, 0.1) - sdf.clamp(-0.1, 0.1)).abs().mean()
+        torch.manual_seed(0)
+        untrained = instantiate(config)
+        error_before = (untrained(points, code).clamp(-0.1, 0.1) - sdf.clamp(-0.1, 0.1)).abs().mean()
+    assert error < 0.5 * error_before
+    again, provenance = fitted_decoder(config, code, 150, tmp_path)
+    assert "cached" in provenance
+    for a, b in zip(first.state_dict().values(), again.state_dict().values()):
+        assert torch.equal(a, b)

@@ -1,10 +1,12 @@
 """Wall-clock cost of each step of reconstruction with uncertainty, per decoder architecture.
 
 Decoders: a trained one when `decoder_dir` is given (with one of its test codes), else the config's
-architecture with random weights (seed 0, code ~ N(0, 0.01 I)) and the last layer's bias shifted by
-the median SDF of a 32^3 grid so that the zero level set cuts the cube and there is a mesh to time.
+architecture (seed 0, code ~ N(0, 0.01 I)) fitted to a procedural chair for `fit_steps` steps
+(`ushape.bench.fitted`), or with `fit_steps=0` left random with the last layer's bias shifted by the
+median SDF of a 32^3 grid so that the zero level set cuts the cube and there is a mesh to time.
 Timings depend on the architecture and the grid size, not on the weights, except coarse-to-fine
-extraction and vertex counts, which depend on how much surface there is.
+extraction, the narrow band and vertex counts, which depend on how much surface there is: a random
+field has surface everywhere, so those rows mean something only for a fitted or trained decoder.
 
 Slow rows of big decoders can be measured on a random subset of the grid's points and scaled
 linearly to the full grid; such rows are marked "extrapolated" with the fraction they ran on.
@@ -12,36 +14,26 @@ linearly to the full grid; such rows are marked "extrapolated" with the fraction
 
 from __future__ import annotations
 
-import statistics
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
 
 import torch
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 from torch import nn
 
+from ushape.bench.depth import depth_rows
+from ushape.bench.fitted import fitted_decoder
+from ushape.bench.timing import Measurement, timed
 from ushape.decoder.artifacts import codes_file, load_codes, load_decoder
 from ushape.decoder.query import code_sdf_fn
 from ushape.fusion.rules import fuse_average, fuse_bayesian, fuse_bayesian_k
 from ushape.mesh.extraction import extract_mesh, marching_cubes
+from ushape.propagation.band import narrow_band_field
 from ushape.propagation.decoding import frozen
 from ushape.propagation.mesh import decode_field, grid_points, propagate, vertex_uncertainty
 
 CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
-
-
-@dataclass(frozen=True)
-class Measurement:
-    """One row: seconds (median over repeats), how it was obtained, and what it ran on."""
-
-    name: str
-    seconds: float
-    repeats: int = 1
-    extrapolated_from: float | None = None  # fraction of the work actually timed
-    note: str = ""
 
 
 @dataclass(frozen=True)
@@ -54,21 +46,12 @@ class BenchSettings:
     field_fraction: float = 1.0  # of grid points timed for the uncertainty fields (1: all)
     skip_slow: bool = False  # skip the MC field entirely
     seed: int = 0
+    depth_views: int = 12  # views of the depth-uncertainty rows (0: skip them)
+    depth_size: int = 48  # their pixels per side
 
 
-def timed(fn: Callable[[], Any], repeats: int, warmup: int = 0) -> tuple[float, Any]:
-    """(median seconds over `repeats` calls, the last call's result)."""
-    for _ in range(warmup):
-        fn()
-    times, result = [], None
-    for _ in range(repeats):
-        start = time.perf_counter()
-        result = fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times), result
-
-
-def bench_decoder(config_name: str, decoder_dir: str | Path | None = None) -> tuple[nn.Module, torch.Tensor, str]:
+def bench_decoder(config_name: str, decoder_dir: str | Path | None = None, fit_steps: int = 0,
+                  cache_dir: str | Path | None = None) -> tuple[nn.Module, torch.Tensor, str]:
     """(decoder, code [D], where they came from) for conf/decoder/<config_name>.yaml or a trained folder."""
     if decoder_dir is not None:
         decoder = load_decoder(decoder_dir)
@@ -81,6 +64,9 @@ def bench_decoder(config_name: str, decoder_dir: str | Path | None = None) -> tu
     torch.manual_seed(0)
     decoder = instantiate(config).eval().requires_grad_(False)
     code = 0.1 * torch.randn(int(config.latent_size))
+    if fit_steps > 0:
+        decoder, provenance = fitted_decoder(config, code, fit_steps, None if cache_dir is None else Path(cache_dir))
+        return decoder, code, provenance
     _centre_surface(decoder, code)
     return decoder, code, "random weights"
 
@@ -165,6 +151,24 @@ def decoder_rows(decoder: nn.Module, code: torch.Tensor, settings: BenchSettings
         if method == "mc" and settings.skip_slow:
             continue
         rows.append(_field_uncertainty_row(decoder, code, var, settings, method))
+    rows += narrow_band_rows(decoder, code, var, settings)
+    if settings.depth_views > 0:
+        rows += depth_rows(decoder, code, var, settings.depth_views, settings.depth_size, settings.n_samples,
+                           seed=settings.seed, repeats=reps)
+    return rows
+
+
+def narrow_band_rows(decoder: nn.Module, code: torch.Tensor, var: torch.Tensor,
+                     settings: BenchSettings) -> list[Measurement]:
+    """SDF mean and variance on the N^3 grid with the variance only in the narrow band, both methods."""
+    rows = []
+    for method in ("linearised", "mc"):
+        g = torch.Generator().manual_seed(settings.seed)
+        seconds, band = timed(lambda: narrow_band_field(decoder, code, var, settings.resolution, method,
+                                                        settings.n_samples, g), settings.repeats)
+        label = f"field uncertainty {method}" + (f" M={settings.n_samples}" if method == "mc" else "")
+        rows.append(Measurement(f"{label} narrow band", seconds, settings.repeats,
+                                note=f"{band.evaluations} of {settings.resolution ** 3} points computed"))
     return rows
 
 
@@ -185,11 +189,16 @@ def run_bench(
     decoders: dict[str, str | Path | None],
     field_fractions: dict[str, float] | None = None,
     encoders: tuple[tuple[str, int], ...] = (("efficientnet_lite0", 96), ("resnet50", 224)),
+    fit_steps: int = 0,
+    cache_dir: str | Path | None = None,
 ) -> tuple[list[Measurement], list[DecoderBench]]:
-    """(shared rows: encoders and fusion, per-decoder benches) for {config name: trained folder or None}."""
+    """(shared rows: encoders and fusion, per-decoder benches) for {config name: trained folder or None}.
+
+    Decoders without a folder are fitted to a procedural chair for fit_steps steps (cached in cache_dir).
+    """
     benches, latent = [], 64
     for name, folder in decoders.items():
-        decoder, code, provenance = bench_decoder(name, folder)
+        decoder, code, provenance = bench_decoder(name, folder, fit_steps, cache_dir)
         fraction = (field_fractions or {}).get(name, settings.field_fraction)
         own = BenchSettings(**{**settings.__dict__, "field_fraction": fraction})
         bench = DecoderBench(name, provenance, sum(p.numel() for p in decoder.parameters()))
