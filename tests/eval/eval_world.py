@@ -116,7 +116,7 @@ def sphere_codes(tmp_path_factory):
 def tiny_settings(**overrides):
     values = dict(group_size=4, resolution=24, n_points=128, sdf_points=200, mc_samples=4,
                   single_view_scales=(1.0, 0.1), corrupted_scales=(0.4, 0.1), table4_k=2, calibration_levels=10,
-                  locality_points=200)
+                  locality_points=200, depth_size=16)
     return Settings(**{**values, **overrides})
 
 

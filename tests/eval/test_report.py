@@ -52,9 +52,11 @@ def test_table4_columns_are_min_scales_and_missing_cells_are_dashes():
 def test_evaluation_writes_every_table_plot_and_row(evaluated_dir):
     names = {p.name for p in evaluated_dir.iterdir()}
     assert {"results.json", "records.csv", "summary.csv", "tables.md", "table1.csv", "table3.csv", "table4.csv",
-            "table5.csv", "tables1.csv", "eval_row.json", "tensorboard", "meshes", "plots"} <= names
+            "table5.csv", "tables1.csv", "tabled.csv", "depth.csv", "eval_row.json", "tensorboard", "meshes",
+            "plots"} <= names
     plots = {p.name for p in (evaluated_dir / "plots").iterdir()}
-    assert plots == {"calibration_latent.png", "calibration_sdf.png", "iou_vs_k.png", "iou_vs_min_scale.png"}
+    assert plots == {"calibration_latent.png", "calibration_sdf.png", "calibration_depth.png", "iou_vs_k.png",
+                     "iou_vs_min_scale.png"}
     assert list((evaluated_dir / "tensorboard").glob("events.out.tfevents.*"))
     assert len(list((evaluated_dir / "meshes").glob("*.png"))) == 6  # 3 encoders x (single, fused) x 1 shape
     text = (evaluated_dir / "results.json").read_text()

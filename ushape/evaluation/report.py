@@ -3,9 +3,10 @@
     <out_dir>/results.json      everything (records, summary, uncertainty rows, calibration curves)
     <out_dir>/records.csv       one row per scored reconstruction
     <out_dir>/summary.csv       one row per table cell
-    <out_dir>/table1.csv ... tables.md   the paper's tables
+    <out_dir>/table1.csv ... tables.md   the paper's tables (and ours: tableu, tablel, tabled)
+    <out_dir>/depth.csv         depth-std calibration per encoder and depth method (Table D)
     <out_dir>/eval_row.json     the configured fusion/crop setting's rows (what a sweep gathers)
-    <out_dir>/plots/*.png       calibration (latent, SDF), IoU vs K, IoU vs min scale
+    <out_dir>/plots/*.png       calibration (latent, SDF, depth), IoU vs K, IoU vs min scale
     <out_dir>/tensorboard/      the same numbers and figures
 """
 
@@ -46,6 +47,8 @@ def build_tables(result: dict[str, Any]) -> list[tables.Table]:
         built.append(tables.table_error_tracking(result["error_tracking"]))
     if result.get("locality"):
         built.append(tables.table_locality(result["locality"]))
+    if result.get("depth"):
+        built.append(tables.table_depth(result["depth"]))
     return [t for t in built if t.rows]
 
 
@@ -55,7 +58,8 @@ def build_figures(result: dict[str, Any]) -> dict[str, Any]:
     figures = {}
     for space, curves in result.get("curves", {}).items():
         if curves:
-            title = "Calibration, latent space" if space == "latent" else "Calibration, SDF space"
+            title = {"latent": "Calibration, latent space", "depth": "Calibration, depth"}.get(space,
+                                                                                          "Calibration, SDF space")
             figures[f"calibration_{space}"] = plots.plot_calibration(
                 {name: (c["p"], c["freq"]) for name, c in curves.items()}, title)
     if any(r["protocol"] == "multi" and r["min_scale"] == 1.0 for r in summary):
@@ -70,7 +74,7 @@ def write_results(result: dict[str, Any], out_dir: str | Path, tensorboard: bool
     out_dir = Path(out_dir)
     atomic.write_json(out_dir / RESULTS, _finite(result))
     atomic.write_json(out_dir / RESULT_ROW, _finite(result.get("rows", [])))
-    for name in ("records", "summary", "uncertainty", "locality_views"):
+    for name in ("records", "summary", "uncertainty", "locality_views", "depth"):
         if result.get(name):
             atomic.write_text(out_dir / f"{name}.csv", rows_to_csv(result[name]))
     built = build_tables(result)

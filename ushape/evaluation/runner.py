@@ -28,20 +28,22 @@ from ushape.data.sdf_dataset import SDFSamplesDataset
 from ushape.decoder.artifacts import CodeTable, codes_file, load_codes, save_codes
 from ushape.decoder.latent_optim import optimise_codes
 from ushape.evaluation import protocols as P
+from ushape.evaluation.depth_calibration import depth_calibration_rows
 from ushape.evaluation.locality import has_cameras, locality_records, summarise_locality
 from ushape.evaluation.reconstruct import Reconstructor
 from ushape.evaluation.showcase import save_showcase
 from ushape.evaluation.uncertainty_protocol import (curves_to_json, decoder_dir_of, error_tracking_row, latent_rows,
                                                     pooled_error_tracking_row, sdf_rows, with_shape_accuracy)
 from ushape.evaluation.views import MASK_INPUTS, encode_views, test_views
+from ushape.reconstruction.depth_implicit import DEPTH_METHODS
 
 log = logging.getLogger(__name__)
 
-PROTOCOLS = ("single_view", "multi_view", "corrupted", "uncertainty", "locality")
+PROTOCOLS = ("single_view", "multi_view", "corrupted", "uncertainty", "locality", "depth")
 LOSS_NAMES = {"energy_score": "es", "gaussian_nll": "nll", "l2_loss": "l2"}
 RESULT_ROW = "eval_row.json"
 # The row lists every encoder contributes to an evaluation's result (concatenated over encoders).
-ROW_KEYS = ("records", "uncertainty", "error_tracking", "locality", "locality_views", "rows")
+ROW_KEYS = ("records", "uncertainty", "error_tracking", "locality", "locality_views", "depth", "rows")
 RESULTS = "results.json"
 # How a mask input shows in an encoder's name and table label (Table 1: "Ours w/ GT Mask", "Ours w/o Mask").
 MASK_VARIANTS = {"gt_mask": ("", "w/ GT Mask"), "none": ("-nomask", "w/o Mask")}
@@ -68,6 +70,11 @@ class Settings:
     locality_points: int = 2048
     locality_scale: float = 0.1
     locality_views: int | None = None
+    depth_size: int = 48
+    depth_views: int | None = 2
+    depth_methods: Sequence[str] = ("implicit", "mc")
+    depth_codes: int = 10
+    depth_steps: int = 50
     max_shapes: int | None = None
     showcase_shapes: int = 2
     code_iterations: int = 800
@@ -80,6 +87,9 @@ class Settings:
             raise ValueError(f"unknown protocols {unknown}; choose from {PROTOCOLS}")
         if self.group_size < 1 or self.resolution < 8:
             raise ValueError("group_size must be >= 1 and resolution >= 8 (grid points per axis)")
+        if not set(self.depth_methods) <= set(DEPTH_METHODS) or self.depth_size < 1 or self.depth_codes < 2:
+            raise ValueError(f"depth_methods must be some of {DEPTH_METHODS}, depth_size >= 1 and depth_codes >= 2; "
+                             f"got {list(self.depth_methods)}, {self.depth_size}, {self.depth_codes}")
 
 
 @dataclass
@@ -220,9 +230,22 @@ def evaluate_encoder(run: EncoderRun, settings: Settings, cache_dir: Path | None
                                                  run.world, scale, settings.seed, settings.locality_points,
                                                  settings.locality_views)
         out["locality"] = summarise_locality(out["locality_views"])
+    if "depth" in protocols:
+        out["depth"], curves = depth_protocol(run, settings, encode)
+        out["curves"]["depth"] = curves_to_json(curves)
     if setting is not None and run.only is None:
         out["rows"].append(setting_row(run, settings, groups, encode, *setting))
     return out
+
+
+def depth_protocol(run: EncoderRun, settings: Settings, encode: Callable) -> tuple[list[dict], dict]:
+    """Table D's rows and curves: depth std against the true depth error along each test view's own camera."""
+    if not has_cameras(run.world, [k.shape_id for k in run.keys]):
+        log.warning("Table D skipped: the test renders of %s have no cameras (views.npz)", run.world.root)
+        return [], {}
+    return depth_calibration_rows(run.spec, encode(1.0), run.predictor.decoder, run.world, settings.depth_size,
+                                  settings.depth_methods, settings.depth_codes, settings.depth_steps,
+                                  settings.depth_views, settings.calibration_levels, settings.seed)
 
 
 def setting_row(run: EncoderRun, settings: Settings, groups, encode, fuse: Callable, method: str,
@@ -266,7 +289,8 @@ def evaluate_all(runs: Sequence[EncoderRun], settings: Settings, cache_dir: Path
     With showcase_dir, the first shapes' reconstructions with uncertainty are saved there (see showcase).
     """
     started = time.time()
-    result: dict[str, Any] = {**{key: [] for key in ROW_KEYS}, "curves": {"latent": {}, "sdf": {}}, "runs": {}}
+    result: dict[str, Any] = {**{key: [] for key in ROW_KEYS}, "curves": {"latent": {}, "sdf": {}, "depth": {}},
+                              "runs": {}}
     for run in runs:
         log.info("evaluating %s on %d views of %s", run.spec.label, len(run.keys), run.world.root)
         part = evaluate_encoder(run, settings, cache_dir, setting)

@@ -211,6 +211,24 @@ def table_locality(rows: Sequence[dict]) -> Table:
     return table
 
 
+def table_depth(rows: Sequence[dict]) -> Table:
+    """Per probabilistic encoder and depth method: is the per-pixel depth std calibrated (see depth_calibration)?"""
+    table = Table("Table D: depth uncertainty calibration",
+                  "Per-pixel depth along each test view's own camera, from the view's latent Gaussian: implicit (one "
+                  "trace of the mean code, first-order std) or Monte Carlo (M codes traced), against the ground-truth "
+                  "mesh's depth, over pixels where both hit. Rank corr: Spearman of |error| and std over the pixels. "
+                  "Coverage: fraction of true depths inside the 68 % / 95 % intervals. CE: calibration error (mean "
+                  "|observed - predicted| frequency). z = (true - predicted) / std: mean 0 and RMS 1 when calibrated.",
+                  ["Method", "Depth method", "px", "mean |error|", "mean std", "rank corr", "68% cover", "95% cover",
+                   "CE", "mean z", "RMS z", "pixels", "views"])
+    order = {e: i for i, (e, _) in enumerate(encoder_order(rows))}
+    for r in sorted(rows, key=lambda r: (order.get(r["encoder"], 99), r["method"])):
+        table.rows.append([r["label"], r["method"], r["size"], r["mean_abs_error"], r["mean_std"], r["rank_corr"],
+                           r["coverage_68"], r["coverage_95"], r["calibration_error"], r["mean_z"], r["rms_z"],
+                           r["n_pixels"], r["n_views"]])
+    return table
+
+
 def write_tables(tables: Sequence[Table], out_dir: str | Path) -> Path:
     """Each table as <slug>.csv, and all of them in tables.md; returns the Markdown file."""
     out_dir = Path(out_dir)
