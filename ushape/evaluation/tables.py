@@ -219,7 +219,7 @@ def table_depth(rows: Sequence[dict]) -> Table:
                   "mesh's depth, over pixels where both hit. Rank corr: Spearman of |error| and std over the pixels. "
                   "Coverage: fraction of true depths inside the 68 % / 95 % intervals. CE: calibration error (mean "
                   "|observed - predicted| frequency). z = (true - predicted) / std: mean 0 and RMS 1 when calibrated.",
-                  ["Method", "Depth method", "px", "mean |error|", "mean std", "rank corr", "68% cover", "95% cover",
+                  ["Method", "Depth method", "px", "mean abs error", "mean std", "rank corr", "68% cover", "95% cover",
                    "CE", "mean z", "RMS z", "pixels", "views"])
     order = {e: i for i, (e, _) in enumerate(encoder_order(rows))}
     for r in sorted(rows, key=lambda r: (order.get(r["encoder"], 99), r["method"])):

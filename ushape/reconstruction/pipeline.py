@@ -125,7 +125,9 @@ def reconstruct(
         overview_figure(images, shown, overview, float(files["std_max"]), settings.cmap, fused.kept.tolist())
     cameras = [view_camera(path, settings.depth_size) for path in paths]
     with timer("depth_uncertainty"):
-        depth = depth_maps(predictor, fused, images, cameras, out_dir, settings, generator)
+        views = depth_maps(predictor, fused, cameras, settings, generator)
+    with timer("depth_files"):  # the figures cost about as much as the implicit depth itself
+        depth = write_depth_maps(views, images, cameras, out_dir, settings)
     with timer("visibility"):  # only where the view's camera is known: a render of the world
         seen = [hidden_over_visible(mesh, std, w2c) if kind == "render" else None for _, w2c, kind in cameras]
     return write_summary(out_dir, predictor, fusion, settings, paths, skipped, var, fused, mesh, std, stats,
@@ -135,22 +137,31 @@ def reconstruct(
 def depth_maps(
     predictor: Predictor,
     fused: FusedCode,
-    images: Tensor,
     cameras: Sequence[tuple[np.ndarray, np.ndarray, str]],  # view_camera(path, settings.depth_size) per view
-    out_dir: Path,
     settings: ReconstructionSettings,
     generator: torch.Generator,
-) -> list[dict[str, Any]]:
-    """Per view: depth mean/std of the fused Gaussian's surface -> depth_<i>.npz/.png.
+) -> list[DepthStats]:
+    """Per view: depth mean/std [S, S] of the fused Gaussian's surface along the view's camera.
 
     settings.depth_method "implicit" traces the mean code for all views at once and differentiates the hit
-    depth (depth_implicit); "mc" traces M = settings.depth_codes codes drawn once from the fused Gaussian (the same codes for every view).
+    depth (depth_implicit); "mc" traces M = settings.depth_codes codes drawn once from the fused Gaussian
+    (the same codes for every view).
     """
     mc = settings.depth_method == "mc"
     codes = sample_codes(fused.mu, fused.var, settings.depth_codes, generator) if mc else None
     size = settings.depth_size
-    views: list[DepthStats] = depth_stats(predictor.decoder, fused.mu, fused.var, [c[:2] for c in cameras],
-                                          (size, size), settings.depth_method, codes, settings.depth_steps)
+    return depth_stats(predictor.decoder, fused.mu, fused.var, [c[:2] for c in cameras], (size, size),
+                       settings.depth_method, codes, settings.depth_steps)
+
+
+def write_depth_maps(
+    views: Sequence[DepthStats],
+    images: Tensor,
+    cameras: Sequence[tuple[np.ndarray, np.ndarray, str]],
+    out_dir: Path,
+    settings: ReconstructionSettings,
+) -> list[dict[str, Any]]:
+    """depth_<i>.npz (mean, std, hit_rate, K, world_to_cam) and depth_<i>.png per view; their summary records."""
     records = []
     for i, ((K, w2c, camera), stats) in enumerate(zip(cameras, views)):
         npz, png = out_dir / f"depth_{i:02d}.npz", out_dir / f"depth_{i:02d}.png"
@@ -159,7 +170,8 @@ def depth_maps(
         depth_figure(images[i], stats, png, f"view {i} ({camera} camera, {settings.depth_method})")
         hit = stats.hit_rate > 0
         records.append({"camera": camera, "method": settings.depth_method,
-                        "codes": settings.depth_codes if mc else None, "npz": str(npz), "png": str(png),
+                        "codes": settings.depth_codes if settings.depth_method == "mc" else None,
+                        "npz": str(npz), "png": str(png),
                         "mean_depth_std": float(stats.std[hit].mean()) if hit.any() else None,
                         "hit_pixels": int(hit.sum())})
     return records
