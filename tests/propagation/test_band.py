@@ -56,3 +56,13 @@ def test_bad_method_and_sample_count_are_refused(gaussian):
         narrow_band_field(EllipsoidDecoder(), mu, var, N, "unscented")
     with pytest.raises(ValueError, match="n_samples"):
         narrow_band_field(EllipsoidDecoder(), mu, var, N, "mc", n_samples=1)
+
+
+def test_field_uncertainty_offers_the_narrow_band_beside_the_dense_grid(gaussian):
+    mu, var = gaussian
+    decoder = EllipsoidDecoder()
+    band = narrow_band_field(decoder, mu, var, 33)
+    mean, variance = field_uncertainty(decoder, mu, var, 33, region="narrow_band")
+    assert torch.equal(mean, band.mean) and torch.equal(variance, band.variance)
+    with pytest.raises(ValueError, match="region"):
+        field_uncertainty(decoder, mu, var, 33, region="sparse")

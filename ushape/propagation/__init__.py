@@ -1,5 +1,6 @@
 """Uncertainty propagation: a Gaussian over the latent code -> mean and variance of the SDF at points."""
 
+from ushape.propagation.band import BandField, narrow_band_field
 from ushape.propagation.decoding import decode_points, frozen
 from ushape.propagation.linearised import propagate_linearised
 from ushape.propagation.mesh import (
@@ -14,11 +15,13 @@ from ushape.propagation.monte_carlo import propagate_mc
 
 __all__ = [
     "METHODS",
+    "BandField",
     "decode_field",
     "decode_points",
     "field_uncertainty",
     "frozen",
     "grid_points",
+    "narrow_band_field",
     "propagate",
     "propagate_linearised",
     "propagate_mc",

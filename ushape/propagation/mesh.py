@@ -6,6 +6,7 @@ import torch
 from torch import Tensor
 
 from ushape.mesh.extraction import DEFAULT_CHUNK, grid_points as mesh_grid_points
+from ushape.propagation.band import narrow_band_field
 from ushape.propagation.decoding import Decoder, decode_points
 from ushape.propagation.linearised import propagate_linearised
 from ushape.propagation.monte_carlo import propagate_mc
@@ -68,8 +69,22 @@ def field_uncertainty(
     generator: torch.Generator | None = None,
     chunk: int | None = None,
     bf16: bool = False,
+    region: str = "dense",
 ) -> tuple[Tensor, Tensor]:
-    """SDF mean and variance grids [N, N, N] over [-1, 1]^3 (see `grid_points` for the layout)."""
+    """SDF mean and variance grids [N, N, N] over [-1, 1]^3 (see `grid_points` for the layout).
+
+    region "dense" computes every grid point; "narrow_band" computes them only near the surface and
+    interpolates the far field from a coarse grid (`ushape.propagation.band.narrow_band_field`, which
+    also returns which points were computed), at a fraction of the cost.
+    """
+    if region == "narrow_band":
+        if bf16:
+            raise ValueError("the narrow band runs in fp32; bf16 is only offered for the dense grid")
+        band = narrow_band_field(decoder, mu, var, resolution, method, n_samples, generator,
+                                 chunk=chunk or DEFAULT_CHUNK)
+        return band.mean, band.variance
+    if region != "dense":
+        raise ValueError(f"region must be 'dense' or 'narrow_band', got {region!r}")
     points = grid_points(resolution, mu.dtype, mu.device)
     mean, variance = propagate(decoder, mu, var, points, method, n_samples, generator, chunk, bf16)
     shape = (resolution,) * 3
