@@ -64,3 +64,12 @@ def test_what_cannot_be_folded_is_left_to_the_module():
     assert fold_code(nn.Linear(3, 1), torch.zeros(3)) is None
     with pytest.raises(ValueError, match=r"code must be \[5\]"):
         fold_code(decoder.eval(), torch.zeros(4, dtype=torch.float64))
+
+
+def test_multiply_adds_count_every_product():
+    decoder, code = decoder_and_code(SHAPES[0])  # 8 -> 32 (skip at 2: 32 - 11 out, then 21 + 8 + 3 in) -> 32 -> 32 -> 1
+    with frozen(decoder):
+        forward, backward = fold_code(decoder, code).multiply_adds()
+    assert forward == 32 * 3 + 21 * 32 + 32 * 24 + 32 * 32 + 1 * 32
+    # backward: through layers 4..1 (their hidden weights) plus the code columns of layers 0 and 2
+    assert backward == 1 * 32 + 32 * 32 + 32 * 21 + 21 * 32 + 32 * 8 + 32 * 8

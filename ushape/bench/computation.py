@@ -26,6 +26,7 @@ from ushape.bench.depth import depth_rows
 from ushape.bench.fitted import fitted_decoder
 from ushape.bench.timing import Measurement, timed
 from ushape.decoder.artifacts import codes_file, load_codes, load_decoder
+from ushape.decoder.folded import fold_code
 from ushape.decoder.query import code_sdf_fn
 from ushape.fusion.rules import fuse_average, fuse_bayesian, fuse_bayesian_k
 from ushape.mesh.extraction import extract_mesh, marching_cubes
@@ -117,9 +118,20 @@ def _field_uncertainty_row(decoder, code, var, settings: BenchSettings, method: 
     g = torch.Generator().manual_seed(settings.seed)
     seconds, _ = timed(lambda: propagate(decoder, code, var, points, method, settings.n_samples, g), settings.repeats)
     label = f"field uncertainty {method}" + (f" M={settings.n_samples}" if method == "mc" else "")
+    note = arithmetic_floor_note(decoder, code) if method == "linearised" else ""
     if fraction < 1.0:
-        return Measurement(label, seconds / fraction, settings.repeats, extrapolated_from=fraction)
-    return Measurement(label, seconds, settings.repeats)
+        return Measurement(label, seconds / fraction, settings.repeats, extrapolated_from=fraction, note=note)
+    return Measurement(label, seconds, settings.repeats, note=note)
+
+
+def arithmetic_floor_note(decoder: nn.Module, code: torch.Tensor) -> str:
+    """The linearised field's cost over the plain field's if both ran at the same multiply-adds per second."""
+    with frozen(decoder):
+        folded = fold_code(decoder, code)
+    if folded is None:
+        return ""
+    forward, backward = folded.multiply_adds()
+    return f"arithmetic floor {1 + backward / forward:.2f}x ({forward:,} + {backward:,} multiply-adds per point)"
 
 
 def decoder_rows(decoder: nn.Module, code: torch.Tensor, settings: BenchSettings) -> list[Measurement]:

@@ -61,6 +61,19 @@ class FoldedDecoder:
             grad = torch.ops.aten.threshold_backward(grad @ layer.hidden, hidden[i - 1], 0.0)  # [P, k]
         return value, jacobian
 
+    def multiply_adds(self) -> tuple[int, int]:
+        """Multiply-adds per point of `sdf` and of the backward `sdf_and_jacobian` adds to it.
+
+        Their ratio plus one is the arithmetic floor of the linearised field's cost over the plain field's.
+        """
+        forward = backward = 0
+        for i, layer in enumerate(self.layers):
+            out = layer.bias.shape[0]
+            forward += out * sum(w.shape[1] for w in (layer.hidden, layer.xyz) if w is not None)
+            backward += out * (layer.code.shape[1] if layer.code is not None else 0)
+            backward += out * layer.hidden.shape[1] if i > 0 else 0
+        return forward, backward
+
     def _forward(self, points: Tensor, keep: bool) -> tuple[Tensor, list[Tensor]]:
         kept: list[Tensor] = []
         x = None
