@@ -68,7 +68,7 @@ def test_ratios_and_verdicts_from_known_timings():
 
 def test_random_decoder_is_shifted_to_have_a_surface():
     decoder, code, provenance = bench_decoder("small")
-    from ushape.propagation.mesh import decode_field
+    from ushape.propagation.field import decode_field
 
     field = decode_field(decoder, code, 16)
     assert provenance == "random weights" and (field < 0).any() and (field > 0).any()

@@ -141,7 +141,7 @@ def test_decoding_refuses_nan_codes_and_codes_of_another_size(small_decoder):
         propagate_linearised(small_decoder, torch.zeros(5), torch.ones(5), points)
     with pytest.raises(ValueError, match="code has 5 dimensions but the decoder takes 8"):
         propagate_mc(small_decoder, torch.zeros(5), torch.ones(5), points, n_samples=2)
-    from ushape.propagation.mesh import decode_field
+    from ushape.propagation.field import decode_field
 
     with pytest.raises(ValueError, match="NaN"):
         decode_field(small_decoder, torch.tensor([float("nan")] * 8), resolution=2)

@@ -30,9 +30,9 @@ from ushape.decoder.folded import fold_code
 from ushape.decoder.query import code_sdf_fn
 from ushape.fusion.rules import fuse_average, fuse_bayesian, fuse_bayesian_k
 from ushape.mesh.extraction import extract_mesh, marching_cubes
-from ushape.propagation.band import narrow_band_field
 from ushape.propagation.decoding import frozen
-from ushape.propagation.mesh import decode_field, grid_points, propagate, vertex_uncertainty
+from ushape.propagation.field import decode_field, narrow_band_field
+from ushape.propagation.mesh import grid_points, propagate, vertex_uncertainty
 
 CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 

@@ -1,13 +1,12 @@
-"""SDF uncertainty where a reconstruction needs it: at mesh vertices, or over a whole grid in [-1, 1]^3."""
+"""SDF uncertainty at points and mesh vertices, and the grid over [-1, 1]^3 those points are laid on (see field.py)."""
 
 from __future__ import annotations
 
 import torch
 from torch import Tensor
 
-from ushape.mesh.extraction import DEFAULT_CHUNK, grid_points as mesh_grid_points
-from ushape.propagation.band import narrow_band_field
-from ushape.propagation.decoding import Decoder, decode_points
+from ushape.mesh.extraction import grid_points as mesh_grid_points
+from ushape.propagation.decoding import Decoder
 from ushape.propagation.linearised import propagate_linearised
 from ushape.propagation.monte_carlo import propagate_mc
 
@@ -57,47 +56,3 @@ def vertex_uncertainty(
     """Standard deviation of the SDF at each mesh vertex (the paper's per-vertex mesh colouring)."""
     _, variance = propagate(decoder, mu, var, vertices, method, n_samples, generator, chunk, bf16)
     return variance.sqrt()
-
-
-def field_uncertainty(
-    decoder: Decoder,
-    mu: Tensor,  # [D]
-    var: Tensor,  # [D]
-    resolution: int,
-    method: str = "linearised",
-    n_samples: int = 10,
-    generator: torch.Generator | None = None,
-    chunk: int | None = None,
-    bf16: bool = False,
-    region: str = "dense",
-) -> tuple[Tensor, Tensor]:
-    """SDF mean and variance grids [N, N, N] over [-1, 1]^3 (see `grid_points` for the layout).
-
-    region "dense" computes every grid point; "narrow_band" computes them only near the surface and
-    interpolates the far field from a coarse grid (`ushape.propagation.band.narrow_band_field`, which
-    also returns which points were computed), at a fraction of the cost.
-    """
-    if region == "narrow_band":
-        if bf16:
-            raise ValueError("the narrow band runs in fp32; bf16 is only offered for the dense grid")
-        band = narrow_band_field(decoder, mu, var, resolution, method, n_samples, generator,
-                                 chunk=chunk or DEFAULT_CHUNK)
-        return band.mean, band.variance
-    if region != "dense":
-        raise ValueError(f"region must be 'dense' or 'narrow_band', got {region!r}")
-    points = grid_points(resolution, mu.dtype, mu.device)
-    mean, variance = propagate(decoder, mu, var, points, method, n_samples, generator, chunk, bf16)
-    shape = (resolution,) * 3
-    return mean.reshape(shape), variance.reshape(shape)
-
-
-def decode_field(
-    decoder: Decoder,
-    z: Tensor,  # [D]
-    resolution: int,
-    chunk: int = DEFAULT_CHUNK,
-    bf16: bool = False,
-) -> Tensor:  # [N, N, N]
-    """Plain SDF grid [N, N, N] over [-1, 1]^3 for one code, no uncertainty (the cost baseline)."""
-    points = grid_points(resolution, z.dtype, z.device)
-    return decode_points(decoder, z, points, chunk, bf16).reshape((resolution,) * 3)
