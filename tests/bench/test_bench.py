@@ -2,6 +2,8 @@
 
 import re
 
+import pytest
+
 import torch
 
 from ushape.bench.cli import main
@@ -38,7 +40,7 @@ def test_quick_bench_writes_the_whole_table(tmp_path, capsys):
     assert _seconds(rows["fusion bayesian"][0]) > 0 and rows["fusion bayesian"][1] == "0.1 ms"
     assert re.search(r"< 0\.1 ms (pass|miss)", rows["fusion bayesian"][2])
     ratios = [line for line in text.splitlines() if line.startswith("| ") and "x |" in line]
-    assert len(ratios) == 18  # 9 ratios x 2 decoders
+    assert len(ratios) == 20  # 10 ratios x 2 decoders
     assert sum(("pass" in r) or ("miss" in r) for r in ratios) == 10  # 5 with a target x 2 decoders
     assert "points computed" in rows["field uncertainty linearised narrow band"][3]
     assert "faster than MC M=10" in rows["depth uncertainty implicit (2 views)"][3]
@@ -48,8 +50,8 @@ def test_ratios_and_verdicts_from_known_timings():
     bench = DecoderBench("d", "test", 1, [
         Measurement("decoder field fp32", 1.0), Measurement("decoder field bf16", 0.5),
         Measurement("mesh dense (field + MC)", 1.2), Measurement("mesh coarse-to-fine", 0.4),
-        Measurement("vertex uncertainty mc M=10", 0.2), Measurement("vertex uncertainty linearised", 0.02),
-        Measurement("field uncertainty mc M=10", 10.0), Measurement("field uncertainty linearised", 1.5),
+        Measurement("vertex uncertainty mc M=10", 0.2), Measurement("vertex uncertainty linearised", 0.02, points=10),
+        Measurement("field uncertainty mc M=10", 10.0), Measurement("field uncertainty linearised", 1.5, points=1000),
         Measurement("field uncertainty linearised narrow band", 0.15),
         Measurement("field uncertainty mc M=10 narrow band", 0.6),
         Measurement("depth uncertainty mc M=10 (12 views)", 9.0), Measurement("depth uncertainty implicit (12 views)", 1.0),
@@ -61,6 +63,7 @@ def test_ratios_and_verdicts_from_known_timings():
     assert got["narrow-band field w/ unc (linearised) / field"] == (0.15, True)
     assert got["narrow-band field w/ unc (MC M=10) / field"] == (0.6, None)
     assert got["depth unc MC M=10 / implicit (speed-up)"] == (9.0, False)
+    assert got["vertex linearised per vertex / field linearised per point"][0] == pytest.approx((0.02 / 10) / (1.5 / 1000))
     assert got["mesh w/ unc (linearised) / mesh, coarse-to-fine"][1] is True  # 1.05x
     assert got["mesh w/ unc (MC M=10) / mesh, coarse-to-fine"][1] is False  # 1.5x
     assert got["field bf16 / field fp32"] == (0.5, None)

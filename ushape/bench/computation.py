@@ -120,8 +120,9 @@ def _field_uncertainty_row(decoder, code, var, settings: BenchSettings, method: 
     label = f"field uncertainty {method}" + (f" M={settings.n_samples}" if method == "mc" else "")
     note = arithmetic_floor_note(decoder, code) if method == "linearised" else ""
     if fraction < 1.0:
-        return Measurement(label, seconds / fraction, settings.repeats, extrapolated_from=fraction, note=note)
-    return Measurement(label, seconds, settings.repeats, note=note)
+        return Measurement(label, seconds / fraction, settings.repeats, extrapolated_from=fraction, note=note,
+                           points=settings.resolution ** 3)
+    return Measurement(label, seconds, settings.repeats, note=note, points=settings.resolution ** 3)
 
 
 def arithmetic_floor_note(decoder: nn.Module, code: torch.Tensor) -> str:
@@ -158,7 +159,7 @@ def decoder_rows(decoder: nn.Module, code: torch.Tensor, settings: BenchSettings
     for method in ("mc", "linearised"):
         s, _ = timed(lambda: vertex_uncertainty(decoder, code, var, vertices, method, settings.n_samples, g), reps)
         label = f"vertex uncertainty {method}" + (f" M={settings.n_samples}" if method == "mc" else "")
-        rows.append(Measurement(label, s, reps, note=f"{len(vertices)} vertices"))
+        rows.append(Measurement(label, s, reps, note=f"{len(vertices)} vertices", points=len(vertices)))
     for method in ("mc", "linearised"):
         if method == "mc" and settings.skip_slow:
             continue

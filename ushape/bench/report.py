@@ -83,6 +83,7 @@ def ratio_rows(bench: DecoderBench) -> list[tuple[str, float | None, str, bool |
     band_mc = _ratio(next((r.seconds for r in bench.rows if r.name.startswith("field uncertainty mc")
                            and r.name.endswith("narrow band")), None), field)
     depth_speedup = _ratio(bench.seconds("depth uncertainty mc"), bench.seconds("depth uncertainty implicit"))
+    per_vertex = _ratio(_per_point(bench, "vertex uncertainty linearised"), _per_point(bench, "field uncertainty linearised"))
     mesh_lin = _ratio(_total(bench, "mesh coarse-to-fine", "vertex uncertainty linearised"), mesh)
     mesh_mc = _ratio(_total(bench, "mesh coarse-to-fine", "vertex uncertainty mc"), mesh)
     bf16 = next((r.seconds for r in bench.rows if r.name.startswith("decoder field") and "bf16" in r.name), None)
@@ -100,9 +101,16 @@ def ratio_rows(bench: DecoderBench) -> list[tuple[str, float | None, str, bool |
         ("mesh w/ unc (linearised) / mesh, coarse-to-fine", mesh_lin, f"<= {MESH_TARGET:.2f}x", check(mesh_lin, MESH_TARGET)),
         ("mesh w/ unc (MC M=10) / mesh, coarse-to-fine", mesh_mc, f"<= {MESH_TARGET:.2f}x", check(mesh_mc, MESH_TARGET)),
         ("field bf16 / field fp32", _ratio(bf16, field), "(< 1: bf16 faster)", None),
+        ("vertex linearised per vertex / field linearised per point", per_vertex, "(1: at the per-point floor)", None),
         ("depth unc MC M=10 / implicit (speed-up)", depth_speedup, f">= {DEPTH_SPEEDUP_TARGET:g}x",
          None if depth_speedup is None else depth_speedup >= DEPTH_SPEEDUP_TARGET),
     ]
+
+
+def _per_point(bench: DecoderBench, prefix: str) -> float | None:
+    """Seconds per decoder query of the first (dense) row starting with prefix, if it counted its points."""
+    row = next((r for r in bench.rows if r.name.startswith(prefix) and "narrow band" not in r.name), None)
+    return None if row is None or not row.points else row.seconds / row.points
 
 
 def _dense(bench: DecoderBench, prefix: str) -> float | None:

@@ -17,6 +17,7 @@ class Measurement:
     repeats: int = 1
     extrapolated_from: float | None = None  # fraction of the work actually timed
     note: str = ""
+    points: int | None = None  # decoder queries the row answers (grid points, vertices), for per-point costs
 
 
 def timed(fn: Callable[[], Any], repeats: int, warmup: int = 0) -> tuple[float, Any]:
