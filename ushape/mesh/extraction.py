@@ -142,32 +142,12 @@ def coarse_to_fine_grid(
     1.2 gave meshes identical to dense on every quickstart chair code checked, at 10-13x fewer
     evaluations at 128^3 (1.5: 9.4-11x).
     """
-    fields, known = coarse_to_fine_fields(lambda p: torch.as_tensor(sdf_fn(p)).reshape(-1, 1), 1, resolution,
-                                          coarse_resolution, safety, chunk)
-    return fields[..., 0], int(known.sum())
-
-
-def coarse_to_fine_fields(
-    field_fn: Callable[[Tensor], Tensor],  # points [P, 3] -> [P, C], channel 0 the SDF
-    channels: int,
-    resolution: int,
-    coarse_resolution: int = 32,
-    safety: float = 1.2,
-    chunk: int = DEFAULT_CHUNK,
-) -> tuple[Tensor, Tensor]:
-    """C fields on the dense grid, evaluated where `coarse_to_fine_grid` would evaluate the SDF (channel 0).
-
-    Returns (fields [N, N, N, C], known [N, N, N]): known marks the points where field_fn was
-    evaluated (the coarse grid and every block that can hold surface); every other point of every
-    channel is the trilinear interpolation of its surface-free block's corners.
-    """
     n = resolution
     block = _initial_block(n, coarse_resolution)
     # Pad to a whole number of coarse blocks; the padding lies just beyond x = 1 and is cropped.
     m = block * -(-(n - 1) // block) + 1
     voxel = 2.0 / (n - 1)
-    values = torch.zeros(m, m, m, channels)
-    rows = values.view(-1, channels)
+    values = torch.zeros(m, m, m)
     known = torch.zeros(m, m, m, dtype=torch.bool)
     filled = torch.zeros(m, m, m, dtype=torch.bool)
 
@@ -175,7 +155,7 @@ def coarse_to_fine_fields(
         flat = torch.unique(_flat(idx, m))
         flat = flat[~known.view(-1)[flat]]
         points = _index_to_coordinate(_unflat(flat, m), n)
-        rows[flat] = evaluate_field(field_fn, points, channels, chunk)
+        values.view(-1)[flat] = evaluate_sdf(sdf_fn, points, chunk)
         known.view(-1)[flat] = True
 
     axis = torch.arange(0, m, block)
@@ -184,28 +164,17 @@ def coarse_to_fine_fields(
     origins = origins[(origins < m - 1).all(dim=1)]
     while block > 1:
         corners = origins[:, None, :] + block * _CUBE_CORNERS  # [K, 8, 3]
-        corner_values = rows[_flat(corners, m)]  # [K, 8, C]
+        corner_values = values.view(-1)[_flat(corners, m)]  # [K, 8]
         half_diagonal = 0.5 * block * voxel * 3**0.5
-        near = corner_values[..., 0].abs().min(dim=1).values <= safety * half_diagonal
-        _fill_far_blocks(rows, known, filled, origins[~near], block, corner_values[~near])
+        near = corner_values.abs().min(dim=1).values <= safety * half_diagonal
+        _fill_far_blocks(values, known, filled, origins[~near], block, corner_values[~near])
         origins, block = origins[near], block // 2
         children = origins[:, None, :] + block * _CUBE_CORNERS  # [K, 8, 3]
         evaluate((origins[:, None, :] + block * _CUBE_27).reshape(-1, 3))
         origins = children.reshape(-1, 3)
     if not bool((known | filled)[:n, :n, :n].all()):
         raise RuntimeError("coarse-to-fine extraction left grid points unset; this is a bug")
-    return values[:n, :n, :n].clone(), known[:n, :n, :n].clone()
-
-
-def evaluate_field(field_fn: Callable[[Tensor], Tensor], points: Tensor, channels: int,
-                   chunk: int = DEFAULT_CHUNK) -> Tensor:
-    """C fields at points, in chunks without gradients. points [P, 3] -> [P, C] float32 (CPU)."""
-    out = torch.empty(points.shape[0], channels, dtype=torch.float32)
-    with torch.no_grad():
-        for start in range(0, points.shape[0], chunk):
-            values = torch.as_tensor(field_fn(points[start : start + chunk]))
-            out[start : start + chunk] = values.detach().reshape(-1, channels).float().cpu()
-    return out
+    return values[:n, :n, :n].clone(), int(known.sum())
 
 
 def _initial_block(resolution: int, coarse_resolution: int) -> int:
@@ -217,15 +186,12 @@ def _initial_block(resolution: int, coarse_resolution: int) -> int:
 
 
 def _fill_far_blocks(
-    rows: Tensor, known: Tensor, filled: Tensor, origins: Tensor, block: int, corner_values: Tensor
+    values: Tensor, known: Tensor, filled: Tensor, origins: Tensor, block: int, corner_values: Tensor
 ) -> None:
-    """Fill unknown points of surface-free blocks by trilinear interpolation of their 8 corners.
-
-    rows [m^3, C] the grid's fields, corner_values [K, 8, C] those of the K blocks at origins [K, 3].
-    """
+    """Fill unknown points of surface-free blocks by trilinear interpolation of their 8 corners."""
     if origins.shape[0] == 0:
         return
-    m = known.shape[0]
+    m = values.shape[0]
     steps = torch.arange(block + 1)
     offsets = torch.stack(torch.meshgrid(steps, steps, steps, indexing="ij"), dim=-1).reshape(-1, 3)
     t = offsets.float() / block  # [Q, 3] local coordinates in [0, 1]
@@ -233,9 +199,9 @@ def _fill_far_blocks(
     weights = torch.where(_CUBE_CORNERS.bool()[None], t[:, None, :], 1.0 - t[:, None, :]).prod(dim=-1)
     for part in torch.split(torch.arange(origins.shape[0]), max(1, 2**22 // offsets.shape[0])):
         flat = _flat(origins[part, None, :] + offsets[None], m)  # [K, Q]
-        interpolated = torch.einsum("kec,qe->kqc", corner_values[part], weights)  # [K, Q, C]
+        interpolated = corner_values[part] @ weights.T  # [K, Q]
         free = ~(known.view(-1)[flat] | filled.view(-1)[flat])
-        rows[flat[free]] = interpolated[free]
+        values.view(-1)[flat[free]] = interpolated[free]
         filled.view(-1)[flat[free]] = True
 
 

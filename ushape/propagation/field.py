@@ -2,7 +2,7 @@
 
 `field_uncertainty` computes every grid point (region "dense") or only the narrow band around the
 surface (region "narrow_band", `narrow_band_field`), in two passes:
-1. the mean: coarse-to-fine extraction of f(x, mu) (`ushape.mesh.extraction.coarse_to_fine_fields`)
+1. the mean: coarse-to-fine extraction of f(x, mu) (`ushape.mesh.extraction.coarse_to_fine_grid`)
    evaluates a coarse grid everywhere and refines only blocks within reach of the surface; the rest
    is interpolated from block corners (same sign, which is all marching cubes reads);
 2. the variance, linearised or Monte Carlo, in the band: the corners of every cell whose mean
@@ -22,7 +22,7 @@ import torch
 from torch import Tensor
 from torch.nn import functional as F
 
-from ushape.mesh.extraction import DEFAULT_CHUNK, coarse_to_fine_fields
+from ushape.mesh.extraction import DEFAULT_CHUNK, coarse_to_fine_grid
 from ushape.propagation.decoding import Decoder, check_code_size, check_latent_gaussian, decode_points
 from ushape.propagation.mesh import grid_points, propagate
 
@@ -66,12 +66,10 @@ def narrow_band_field(
         raise ValueError(f"band_cells must be an integer >= 0, got {band_cells!r}")
     if isinstance(far_resolution, bool) or not isinstance(far_resolution, int) or far_resolution < 2:
         raise ValueError(f"far_resolution must be an integer >= 2, got {far_resolution!r}")
-    def sdf(points: Tensor) -> Tensor:  # [P, 3] -> [P, 1]
-        return decode_points(decoder, mu, points.to(mu.dtype), chunk).unsqueeze(-1)
+    def sdf(points: Tensor) -> Tensor:  # [P, 3] -> [P]
+        return decode_points(decoder, mu, points.to(mu.dtype), chunk)
 
-    fields, known = coarse_to_fine_fields(sdf, 1, resolution,
-                                          min(coarse_resolution, resolution), safety, chunk)
-    mean = fields[..., 0]
+    mean, evaluations = coarse_to_fine_grid(sdf, resolution, min(coarse_resolution, resolution), safety, chunk)
     band = surface_cell_corners(mean, band_cells)
     points = torch.cat([grid_points(resolution)[band.reshape(-1)], grid_points(far_resolution)])
     mc_chunk = None if method == "mc" else chunk  # MC's own default: M codes meet each chunk
@@ -81,7 +79,7 @@ def narrow_band_field(
     far = variance[n_band:].reshape(1, 1, *(far_resolution,) * 3)
     grid = F.interpolate(far, size=(resolution,) * 3, mode="trilinear", align_corners=True)[0, 0]
     grid[band] = variance[:n_band]
-    return BandField(mean, grid, band, int(known.sum()), points.shape[0])
+    return BandField(mean, grid, band, evaluations, points.shape[0])
 
 
 def surface_cell_corners(sdf: Tensor, widen: int = 0) -> Tensor:  # [N, N, N] -> bool [N, N, N]
