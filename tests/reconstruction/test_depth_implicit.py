@@ -180,7 +180,8 @@ def test_depth_stats_dispatches_and_bad_input_is_a_value_error():
     # tracing both views together gives each view what tracing it alone does
     alone = depth_uncertainty_implicit(PlaneDecoder(), mu, var, K2, w2c2, (9, 9))
     for together, single in zip(implicit[1], alone):
-        assert torch.equal(together.isnan(), single.isnan()) and torch.allclose(together.nan_to_num(), single.nan_to_num())
+        assert torch.equal(together.isnan(), single.isnan())
+        assert torch.allclose(together.nan_to_num(), single.nan_to_num())
     with pytest.raises(ValueError, match="must be one of"):
         depth_stats(PlaneDecoder(), mu, var, [(K, w2c)], (9, 9), "linear")
     with pytest.raises(ValueError, match="pass codes"):
