@@ -42,7 +42,7 @@ def test_quick_bench_writes_the_whole_table(tmp_path, capsys):
     ratios = [line for line in text.splitlines() if line.startswith("| ") and "x |" in line]
     assert len(ratios) == 20  # 10 ratios x 2 decoders
     assert sum(("pass" in r) or ("miss" in r) for r in ratios) == 10  # 5 with a target x 2 decoders
-    assert "points computed" in rows["field uncertainty linearised narrow band"][3]
+    assert "variance at" in rows["field uncertainty linearised narrow band"][3]
     assert "faster than MC M=10" in rows["depth uncertainty implicit (2 views)"][3]
 
 

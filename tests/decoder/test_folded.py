@@ -41,6 +41,18 @@ def test_folded_sdf_and_jacobian_match_module_and_autograd(spec):
     assert jacobian.abs().max() > 1e-3  # a real Jacobian, not zeros
 
 
+@pytest.mark.parametrize("spec", SHAPES)
+def test_spatial_gradient_matches_autograd(spec):
+    decoder, code = decoder_and_code(spec, seed=1)
+    points = (torch.rand(300, 3, dtype=torch.float64) * 2 - 1).requires_grad_(True)
+    with frozen(decoder):
+        (expected,) = torch.autograd.grad(decoder(points, code).sum(), points)
+        _, jacobian, spatial = fold_code(decoder, code).sdf_and_gradients(points.detach())
+        _, jacobian_only = fold_code(decoder, code).sdf_and_jacobian(points.detach())
+    torch.testing.assert_close(spatial, expected, rtol=1e-9, atol=1e-12)
+    assert torch.equal(jacobian, jacobian_only)
+
+
 def test_code_sdf_fn_uses_the_folded_decoder_and_returns_float32():
     decoder, code = decoder_and_code(SHAPES[0])
     points = torch.rand(100, 3, dtype=torch.float64) * 2 - 1

@@ -46,20 +46,28 @@ class FoldedDecoder:
 
     def sdf_and_jacobian(self, points: Tensor) -> tuple[Tensor, Tensor]:  # [P, 3] -> ([P], [P, D])
         """f(x, z) [P] and ds/dz [P, D] at every point: one forward and one hand-written backward."""
+        value, jacobian, _ = self.sdf_and_gradients(points, with_xyz=False)
+        return value, jacobian
+
+    def sdf_and_gradients(self, points: Tensor, with_xyz: bool = True) -> tuple[Tensor, Tensor, Tensor | None]:
+        """f(x, z) [P], ds/dz [P, D] and (with_xyz) ds/dx [P, 3] from the same backward pass."""
         value, hidden = self._forward(points, keep=True)
         grad = (1.0 - value.square()).unsqueeze(-1) if self.output_tanh else torch.ones_like(value).unsqueeze(-1)
-        jacobian = None
+        jacobian, spatial = None, None
         for i in range(len(self.layers) - 1, -1, -1):
             layer = self.layers[i]
             if layer.code is not None:
                 term = grad @ layer.code  # [P, D]
                 jacobian = term if jacobian is None else jacobian.add_(term)
+            if with_xyz and layer.xyz is not None:
+                term = grad @ layer.xyz  # [P, 3]
+                spatial = term if spatial is None else spatial.add_(term)
             if i == 0:
                 break
             # relu'(a_{i-1}): h_i = relu(a_{i-1}) is > 0 exactly there. ReLU's own backward kernel is
             # one fused pass; multiplying by a bool mask measured 20-30x slower on CPU.
             grad = torch.ops.aten.threshold_backward(grad @ layer.hidden, hidden[i - 1], 0.0)  # [P, k]
-        return value, jacobian
+        return value, jacobian, spatial
 
     def multiply_adds(self) -> tuple[int, int]:
         """Multiply-adds per point of `sdf` and of the backward `sdf_and_jacobian` adds to it.

@@ -27,6 +27,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ushape.decoder.folded import fold_code
 from ushape.encoder.latent_metrics import spearman_correlation
 from ushape.mesh.extraction import DEFAULT_CHUNK
 from ushape.propagation.decoding import Decoder, check_code_size, check_latent_gaussian, frozen
@@ -98,14 +99,21 @@ def depth_uncertainty_implicit_views(
     rays = [camera_rays(K, w2c, image_hw, steps, eps) for K, w2c in cameras]
     origins, directions = torch.cat([o for o, _ in rays]), torch.cat([d for _, d in rays])
     mu, var = mu.detach().float(), var.detach().float()
-    with frozen(decoder):
-        t, hit = sphere_trace(codes_sdf(decoder, mu[None]), origins, directions, 1, steps, eps)
+    with frozen(decoder), torch.no_grad():
+        # A DeepSDFDecoder is traced and differentiated with the mean code folded in (no autograd).
+        folded = fold_code(decoder, mu)
+        trace_sdf = codes_sdf(decoder, mu[None]) if folded is None else (lambda points, _code: folded.sdf(points))
+        t, hit = sphere_trace(trace_sdf, origins, directions, 1, steps, eps)
         t, hit = t[0], hit[0]
         pixels = hit.nonzero().squeeze(1)
         variance = torch.empty(pixels.shape[0])
         for start in range(0, pixels.shape[0], chunk):
             ray = pixels[start : start + chunk]
-            grad_z, grad_x = hit_gradients(decoder, mu, origins[ray] + t[ray, None] * directions[ray])
+            points = origins[ray] + t[ray, None] * directions[ray]
+            if folded is None:
+                grad_z, grad_x = hit_gradients(decoder, mu, points)
+            else:
+                _, grad_z, grad_x = folded.sdf_and_gradients(points)
             sensitivity = depth_sensitivity(grad_z.float(), grad_x.float(), directions[ray], min_cosine)
             variance[start : start + ray.shape[0]] = sensitivity.square() @ var
     mean = torch.where(hit, t, torch.full_like(t, float("nan")))
