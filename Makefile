@@ -26,6 +26,9 @@ test: install
 test-slow: install
 	$(PY) -m pytest -q -m slow $(ARGS)
 
+bench: install
+	$(PY) bench.py $(ARGS)
+
 gallery: install
 	$(PY) -m ushape.data.preview $(ARGS)
 

@@ -1,7 +1,4 @@
-"""Known-answer tests for latent-space fusion rules."""
-
-import time
-import warnings
+"""Known-answer tests for latent-space fusion rules (their speed is a bench.py row, not a test)."""
 
 import pytest
 import torch
@@ -143,19 +140,6 @@ def test_hydra_instantiates_the_callables():
 
     rule = instantiate({"_target_": "ushape.fusion.BayesianKFusion", "k": 4, "var_floor": 1e-8})
     assert isinstance(rule, BayesianKFusion) and rule.k == 4
-
-
-def test_fusing_ten_views_is_fast():
-    mu, var = torch.randn(10, 64), torch.rand(10, 64) + 0.1
-    for _ in range(50):
-        fuse_bayesian(mu, var)
-    with warnings.catch_warnings():
-        start = time.perf_counter()
-        for _ in range(1000):
-            fuse_bayesian(mu, var)
-        per_call = (time.perf_counter() - start) / 1000
-    # The paper reports 0.1 ms on a GPU; leave headroom for a loaded shared CPU.
-    assert per_call < 1e-3, f"fusing 10 views took {per_call * 1e3:.3f} ms"
 
 
 def test_k_accepts_integer_likes_and_rejects_others():
