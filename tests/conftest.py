@@ -11,9 +11,6 @@ import torch  # noqa: E402
 
 torch.set_num_threads(2)
 
-REPO_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SHARED_DATA = os.path.join(os.path.dirname(REPO_ROOT), "shared", "data", "real_sample")
-
 
 @pytest.fixture(autouse=True)
 def _seed():

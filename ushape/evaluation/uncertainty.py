@@ -19,7 +19,7 @@ import torch
 from torch import Tensor
 
 from ushape.encoder.latent_metrics import latent_scores
-from ushape.encoder.losses import energy_score, gaussian_nll
+from ushape.encoder.losses import gaussian_nll
 from ushape.evaluation.scores import energy_score_1d, gaussian_nll_1d
 from ushape.propagation import propagate, propagate_mc
 
@@ -32,12 +32,6 @@ SDF_VAR_FLOOR = 1e-6
 def latent_nll(mu: Tensor, var: Tensor, target: Tensor) -> Tensor:
     """Mean over codes of -log N(target; mu, diag(var)) with the constant. mu, var, target [N, D] -> []."""
     return gaussian_nll(mu, var.log(), target) + 0.5 * mu.shape[-1] * math.log(2 * math.pi)
-
-
-def latent_energy_score(mu: Tensor, var: Tensor, target: Tensor, n_samples: int = 1000, seed: int = 0) -> Tensor:
-    """Mean over codes of the multivariate Energy Score of N(mu, diag(var)) at target [N, D] -> []."""
-    generator = torch.Generator().manual_seed(seed)
-    return energy_score(mu, var.log(), target, n_samples=n_samples, generator=generator)
 
 
 def latent_report(mu: Tensor, var: Tensor, target: Tensor, n_samples: int = 1000, n_levels: int = 20) -> dict:

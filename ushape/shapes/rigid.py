@@ -17,12 +17,6 @@ def rot_y(angle: float) -> np.ndarray:
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
-def rot_z(angle: float) -> np.ndarray:
-    """[3,3] rotation by `angle` radians about +Z (right-handed)."""
-    c, s = np.cos(angle), np.sin(angle)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 def frame_along(direction: np.ndarray, hint: np.ndarray | None = None) -> np.ndarray:
     """[3,3] rotation whose local +Y is `direction` and local +X is `hint` made orthogonal to it.
 
