@@ -29,10 +29,10 @@ from ushape.fusion.rules import FusedCode
 from ushape.mesh.extraction import extract_mesh
 from ushape.propagation.decoding import frozen
 from ushape.propagation.mesh import METHODS, vertex_uncertainty
+from ushape.reconstruction.depth_implicit import DEPTH_METHODS, depth_stats
 from ushape.reconstruction.export import DEFAULT_CMAP, coloured_mesh, write_mesh_files
 from ushape.reconstruction.figures import depth_figure, overview_figure
 from ushape.reconstruction.predictor import Predictor
-from ushape.reconstruction.depth_implicit import DEPTH_METHODS, depth_stats
 from ushape.reconstruction.sphere_tracing import DepthStats, sample_codes
 from ushape.reconstruction.visibility import hidden_over_visible
 
