@@ -111,7 +111,7 @@ def field_uncertainty(
     """SDF mean and variance grids [N, N, N] over [-1, 1]^3 (see `grid_points` for the layout).
 
     region "dense" computes every grid point; "narrow_band" computes them only near the surface and
-    interpolates the far field from a coarse grid (`ushape.propagation.band.narrow_band_field`, which
+    interpolates the far field from a coarse grid (`narrow_band_field` above, which
     also returns which points were computed), at a fraction of the cost.
     """
     if region == "narrow_band":
