@@ -6,7 +6,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.ushape-installed
 
-.PHONY: install demo test test-slow bench gallery clean
+.PHONY: install demo test test-slow lint bench gallery clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -25,6 +25,9 @@ test: install
 
 test-slow: install
 	$(PY) -m pytest -q -m slow $(ARGS)
+
+lint: install
+	$(PY) -m ruff check .
 
 bench: install
 	$(PY) bench.py $(ARGS)

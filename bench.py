@@ -3,6 +3,8 @@
 import sys
 
 import ushape  # noqa: F401  (first: repairs the CPU-torch / CUDA-torchvision mismatch)
+
+# isort: split
 from ushape.bench.cli import main
 
 if __name__ == "__main__":

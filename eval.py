@@ -10,6 +10,8 @@
 
 import ushape  # noqa: F401  (first: makes torchvision/lightning importable on CPU torch)
 
+# isort: split
+
 import hydra
 from omegaconf import DictConfig
 

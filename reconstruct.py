@@ -8,6 +8,8 @@
 import sys
 
 import ushape  # noqa: F401  (first: repairs the CPU-torch / CUDA-torchvision mismatch)
+
+# isort: split
 from ushape.reconstruction.cli import main
 
 if __name__ == "__main__":

@@ -5,6 +5,8 @@ import os
 os.environ.setdefault("OMP_NUM_THREADS", "2")
 
 import ushape  # noqa: E402,F401  (must precede torchvision/lightning imports)
+
+# isort: split
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 import torch  # noqa: E402

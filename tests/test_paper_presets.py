@@ -4,7 +4,6 @@ categories end to end on CPU with tiny limits (the same commands a GPU run takes
 import json
 from pathlib import Path
 
-import pytest
 import torch
 from hydra import compose, initialize_config_dir
 from repo_commands import run_command

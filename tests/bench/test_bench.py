@@ -3,7 +3,6 @@
 import re
 
 import pytest
-
 import torch
 
 from ushape.bench.cli import main

@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 from data_toy_shapes import toy_shape_factory
 
-from ushape import atomic
 from ushape.data.render_dataset import view_files
 from ushape.data.world import SyntheticWorld, open_world
 

@@ -9,8 +9,8 @@ from PIL import Image
 
 from ushape.data.pix3d import (
     Pix3DImages,
-    crop_resize,
     Pix3DWorld,
+    crop_resize,
     load_annotations,
     load_voxels,
     multiview_groups,

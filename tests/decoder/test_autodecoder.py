@@ -2,9 +2,10 @@
 
 import json
 
+import lightning as L
 import pytest
 import torch
-import lightning as L
+from sphere_world import FAST_TRAINER, SPLITS
 
 from ushape.decoder.artifacts import load_codes, load_decoder
 from ushape.decoder.autodecoder import AutoDecoderModule, deepsdf_lr_factor
@@ -12,8 +13,6 @@ from ushape.decoder.datamodule import SDFDataModule
 from ushape.decoder.fit import fit_decoder
 from ushape.decoder.losses import clamped_l1
 from ushape.decoder.query import code_sdf_fn
-
-from sphere_world import FAST_TRAINER, SPLITS
 
 
 def test_codes_start_at_deepsdf_scale(tiny_decoder_config):

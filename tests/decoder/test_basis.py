@@ -3,7 +3,15 @@
 import pytest
 import torch
 
-from ushape.decoder.artifacts import DONE_FILE, CodeTable, codes_file, load_codes, load_decoder, save_codes, save_decoder
+from ushape.decoder.artifacts import (
+    DONE_FILE,
+    CodeTable,
+    codes_file,
+    load_codes,
+    load_decoder,
+    save_codes,
+    save_decoder,
+)
 from ushape.decoder.basis import BASIS_FILE, ensure_basis, pca_basis, rebase_decoder, to_basis
 from ushape.decoder.network import DeepSDFDecoder
 

@@ -3,13 +3,12 @@
 import numpy as np
 import pytest
 import torch
+from sphere_world import sphere_samples
 
 from ushape.decoder.artifacts import load_codes, load_decoder
 from ushape.decoder.latent_optim import optimise_codes
 from ushape.decoder.query import code_sdf_fn
 from ushape.mesh.extraction import extract_mesh
-
-from sphere_world import sphere_samples
 
 
 def test_recovers_held_out_spheres_from_sample_lists(fitted_sphere_folder):

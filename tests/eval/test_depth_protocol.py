@@ -5,7 +5,7 @@ import shutil
 
 import numpy as np
 import pytest
-from eval_world import B, N_VIEWS, make_run, tiny_settings
+from eval_world import N_VIEWS, B, make_run, tiny_settings
 
 from ushape.data.layout import WorldIndex
 from ushape.evaluation.depth_calibration import true_depths

@@ -5,13 +5,12 @@ import warnings
 
 import pytest
 import torch
+from eval_world import RADII, SPHERE_DECODER, code_for_radius
 from hydra import compose, initialize_config_dir
 
 from ushape.decoder.artifacts import CodeTable, codes_file, save_codes, save_decoder
 from ushape.evaluation.command import configured_setting, protocols_for, run_eval
 from ushape.evaluation.runner import PROTOCOLS
-
-from eval_world import RADII, SPHERE_DECODER, code_for_radius
 
 CONF = str(__import__("pathlib").Path(__file__).resolve().parents[2] / "conf")
 

@@ -5,13 +5,12 @@ import warnings
 
 import pytest
 import torch
+from eval_world import RADII, FakePredictor, make_run, tiny_settings
 
 from ushape.data.augment import CompositeBackground, load_rgba, resize
 from ushape.evaluation import protocols as P
 from ushape.evaluation.runner import evaluate_all, evaluate_encoder
 from ushape.evaluation.views import ViewKey, corrupted_view, encode_views, view_seed
-
-from eval_world import FakePredictor, RADII, make_run, tiny_settings
 
 
 def _keys(n_shapes, n_views):

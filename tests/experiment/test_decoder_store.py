@@ -4,9 +4,8 @@ import multiprocessing as mp
 import time
 from pathlib import Path
 
-from omegaconf import OmegaConf
-
 import torch
+from omegaconf import OmegaConf
 from tiny_render_world import tiny_decoder_config
 
 from ushape.decoder.artifacts import DECODER_FILE, DONE_FILE, CodeTable, codes_file, save_codes, save_decoder

@@ -1,6 +1,5 @@
 """A tiny trained run folder (random-init ResNet-18 at 16 px, one SGD step) and its world."""
 
-import json
 
 import lightning as L
 import numpy as np

@@ -1,6 +1,5 @@
 """Depth std by implicit differentiation: known answers (a tilted plane, a sphere) and agreement with Monte Carlo."""
 
-import numpy as np
 import pytest
 import torch
 

@@ -29,9 +29,9 @@ import trimesh
 from PIL import Image
 
 from ushape import atomic
-from ushape.data.jobs import run_jobs
 from ushape.data import integrity, shapenet, shapenet_rendering
 from ushape.data.cameras import format_metadata, parse_metadata, sample_r2n2_views
+from ushape.data.jobs import run_jobs
 from ushape.data.layout import SPLITS, WorldIndex
 from ushape.data.mesh_sdf import MeshProcessingError, load_mesh, normalise_mesh, previous_signs, sample_mesh_sdf
 from ushape.data.rendering import render_views

@@ -22,8 +22,8 @@ import numpy as np
 from filelock import FileLock
 
 from ushape import atomic
-from ushape.data.jobs import run_jobs
 from ushape.data import integrity
+from ushape.data.jobs import run_jobs
 from ushape.data.layout import SPLITS, WorldIndex, world_dir_name
 from ushape.data.shape_artifacts import ShapeFactory, ShapeJob, ShapeResult, artifact_problems, build_shape
 

@@ -24,7 +24,14 @@ from torch import Tensor
 
 from ushape import atomic
 from ushape.decoder.artifacts import (
-    DECODER_FILE, DONE_FILE, codes_file, derived_folder, load_codes, load_decoder, save_codes, save_decoder,
+    DECODER_FILE,
+    DONE_FILE,
+    codes_file,
+    derived_folder,
+    load_codes,
+    load_decoder,
+    save_codes,
+    save_decoder,
 )
 from ushape.decoder.network import DeepSDFDecoder
 

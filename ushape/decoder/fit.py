@@ -18,7 +18,15 @@ from lightning.pytorch.loggers import Logger, TensorBoardLogger
 from ushape import atomic
 from ushape.checkpoints import resume_point
 from ushape.data.sdf_dataset import SDFSamplesDataset
-from ushape.decoder.artifacts import CHECKPOINT_DIR, DECODER_FILE, DONE_FILE, CodeTable, codes_file, save_codes, save_decoder
+from ushape.decoder.artifacts import (
+    CHECKPOINT_DIR,
+    DECODER_FILE,
+    DONE_FILE,
+    CodeTable,
+    codes_file,
+    save_codes,
+    save_decoder,
+)
 from ushape.decoder.autodecoder import AutoDecoderModule
 from ushape.decoder.datamodule import SDFDataModule
 from ushape.decoder.latent_optim import optimise_codes

@@ -21,7 +21,13 @@ from typing import Any, Mapping
 from ushape import atomic
 from ushape.data.sdf_dataset import SDFSamplesDataset
 from ushape.decoder.artifacts import (
-    DECODER_FILE, DONE_FILE, CodeTable, codes_file, derived_folder, load_decoder, save_codes,
+    DECODER_FILE,
+    DONE_FILE,
+    CodeTable,
+    codes_file,
+    derived_folder,
+    load_decoder,
+    save_codes,
 )
 from ushape.decoder.latent_optim import optimise_codes
 

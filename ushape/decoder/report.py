@@ -26,7 +26,13 @@ from ushape.decoder.artifacts import DONE_FILE, codes_file, load_codes, load_dec
 from ushape.decoder.query import code_sdf_fn
 from ushape.mesh.extraction import EmptySurfaceError, extract_mesh
 from ushape.mesh.preview import preview_image
-from ushape.metrics.reconstruction import chamfer_deepsdf, iou_from_occupancy, mesh_inside_fn, occupancy_grid, sdf_inside_fn
+from ushape.metrics.reconstruction import (
+    chamfer_deepsdf,
+    iou_from_occupancy,
+    mesh_inside_fn,
+    occupancy_grid,
+    sdf_inside_fn,
+)
 
 log = logging.getLogger(__name__)
 REPORT_FILE = "report.json"

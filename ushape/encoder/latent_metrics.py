@@ -5,8 +5,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ushape.evaluation.calibration import calibration_curve, calibration_error
 from ushape.encoder.losses import energy_score, gaussian_nll
+from ushape.evaluation.calibration import calibration_curve, calibration_error
 
 
 def latent_l2(mu: Tensor, target: Tensor) -> Tensor:

@@ -44,6 +44,7 @@ from ushape.fusion.rules import fuse_bayesian
 from ushape.mesh.visibility import median_ratio, visible_points
 from ushape.propagation import propagate
 
+
 @dataclass(frozen=True)
 class ViewParts:
     """Surface points of one shape split by one view: hidden [P], and of the visible ones kept / away [P]."""

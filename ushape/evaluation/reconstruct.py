@@ -23,8 +23,14 @@ from torch import Tensor
 
 from ushape import atomic
 from ushape.data.layout import WorldIndex
-from ushape.evaluation.metrics import PIX3D_POINTS, PIX3D_VOXELS, ShapeReference, pix3d_metrics, reference_from_mesh
-from ushape.evaluation.metrics import InsideFn
+from ushape.evaluation.metrics import (
+    PIX3D_POINTS,
+    PIX3D_VOXELS,
+    InsideFn,
+    ShapeReference,
+    pix3d_metrics,
+    reference_from_mesh,
+)
 from ushape.mesh.extraction import EmptySurfaceError, marching_cubes, sdf_grid
 from ushape.propagation import decode_points, frozen
 

@@ -23,8 +23,8 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from ushape.data.layout import WorldIndex
-from ushape.data.world import open_world
 from ushape.data.sdf_dataset import SDFSamplesDataset
+from ushape.data.world import open_world
 from ushape.decoder.artifacts import CodeTable, codes_file, load_codes, save_codes
 from ushape.decoder.latent_optim import optimise_codes
 from ushape.evaluation import protocols as P
@@ -32,8 +32,15 @@ from ushape.evaluation.depth_calibration import depth_calibration_rows
 from ushape.evaluation.locality import has_cameras, locality_records, summarise_locality
 from ushape.evaluation.reconstruct import Reconstructor
 from ushape.evaluation.showcase import save_showcase
-from ushape.evaluation.uncertainty_protocol import (curves_to_json, decoder_dir_of, error_tracking_row, latent_rows,
-                                                    pooled_error_tracking_row, sdf_rows, with_shape_accuracy)
+from ushape.evaluation.uncertainty_protocol import (
+    curves_to_json,
+    decoder_dir_of,
+    error_tracking_row,
+    latent_rows,
+    pooled_error_tracking_row,
+    sdf_rows,
+    with_shape_accuracy,
+)
 from ushape.evaluation.views import MASK_INPUTS, encode_views, test_views
 from ushape.reconstruction.depth_implicit import DEPTH_METHODS
 

@@ -22,7 +22,7 @@ from torch import Tensor
 from tqdm.auto import tqdm
 
 from ushape import atomic
-from ushape.data.augment import CompositeBackground, Compose, RandomResizedCrop, load_rgba, read_image
+from ushape.data.augment import Compose, CompositeBackground, RandomResizedCrop, load_rgba, read_image
 from ushape.data.layout import WorldIndex
 
 MASK_INPUTS = ("gt_mask", "none")

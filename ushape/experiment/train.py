@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import sys
@@ -20,7 +19,8 @@ from ushape.decoder.artifacts import CHECKPOINT_DIR
 from ushape.decoder.basis import ensure_basis
 from ushape.decoder.fit import LAST_CHECKPOINT, fit_decoder
 from ushape.decoder.recode import ensure_codes
-from ushape.encoder.fit import CHECKPOINT_DIR as ENCODER_CHECKPOINTS, LAST_FILE, fit_encoder
+from ushape.encoder.fit import CHECKPOINT_DIR as ENCODER_CHECKPOINTS
+from ushape.encoder.fit import LAST_FILE, fit_encoder
 from ushape.experiment.decoder_store import decoder_dir_for, ensure_decoder, legacy_decoder_dir_for
 from ushape.experiment.demo_meshes import write_demo_meshes
 from ushape.experiment.interrupts import resume_command, resume_exit, stopping_signal, watch_signals

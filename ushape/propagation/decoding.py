@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Callable, ContextManager
 
 import torch
-from torch import Tensor, nn
+from torch import Tensor
 
 from ushape.decoder.folded import fold_code
 from ushape.decoder.query import decoder_autocast, frozen  # noqa: F401  (frozen: re-exported)

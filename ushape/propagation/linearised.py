@@ -9,13 +9,13 @@ from ushape.decoder.folded import fold_code
 from ushape.mesh.extraction import DEFAULT_CHUNK
 from ushape.propagation.decoding import (
     Decoder,
-    output_dtype,
     autocast,
     check_chunk,
     check_code_size,
     check_latent_gaussian,
     check_points,
     frozen,
+    output_dtype,
 )
 
 

@@ -7,13 +7,13 @@ from torch import Tensor
 
 from ushape.propagation.decoding import (
     Decoder,
-    output_dtype,
     autocast,
     check_chunk,
     check_code_size,
     check_latent_gaussian,
     check_points,
     frozen,
+    output_dtype,
 )
 
 

@@ -25,8 +25,8 @@ import torch.nn.functional as F
 from omegaconf import OmegaConf
 from torch import Tensor, nn
 
-from ushape.data.augment import IMAGE_SUFFIXES, CompositeBackground, load_rgba, resize
 from ushape.checkpoints import load_checkpoint
+from ushape.data.augment import IMAGE_SUFFIXES, CompositeBackground, load_rgba, resize
 from ushape.experiment.summary import RUN_SUMMARY, relocated
 from ushape.recalibration.temperature import apply_temperature
 

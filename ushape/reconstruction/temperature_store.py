@@ -16,8 +16,8 @@ from torch.utils.data import DataLoader
 from ushape import atomic
 from ushape.data.render_dataset import RenderDataset
 from ushape.decoder.artifacts import codes_file, load_codes
-from ushape.reconstruction.predictor import Predictor, temperature_path
 from ushape.recalibration.temperature import fit_temperature, gaussian_nll_with_temperature
+from ushape.reconstruction.predictor import Predictor, temperature_path
 
 
 def val_predictions(predictor: Predictor, world: str | Path, batch_size: int = 32) -> tuple[torch.Tensor, ...]:
