@@ -22,19 +22,13 @@ from PIL import Image, ImageDraw, ImageFont
 from ushape import atomic
 from ushape.data.cameras import metadata_to_cameras, sample_r2n2_views
 from ushape.data.layout import WorldIndex
-from ushape.data.rendering import render_views
+from ushape.data.rendering import on_white, render_views
 from ushape.data.shading import part_colour_fn
 from ushape.data.shape_artifacts import ShapeFactory, r2n2_frame
 from ushape.data.world import SyntheticWorld, default_shape_factory, shape_seeds
 
 LABEL_LINES = 4
 LINE_HEIGHT = 12
-
-
-def on_white(rgba: np.ndarray) -> np.ndarray:
-    """RGB uint8 [H,W,3] of an RGBA image [H,W,4] composited over white."""
-    alpha = rgba[..., 3:].astype(np.float64) / 255.0
-    return np.round(rgba[..., :3] * alpha + 255.0 * (1.0 - alpha)).astype(np.uint8)
 
 
 def style_label(shape_id: str, style: dict[str, Any], chars_per_line: int) -> list[str]:

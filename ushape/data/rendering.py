@@ -130,3 +130,9 @@ def render_views(
     caster = mesh if isinstance(mesh, RayCaster) else RayCaster(mesh)
     views = [render_mesh(caster, K, w2c, image_size, colour_fn, **kwargs) for K, w2c in zip(Ks, world_to_cams)]
     return {key: np.stack([v[key] for v in views]) for key in ("rgba", "mask", "depth")}
+
+
+def on_white(rgba: np.ndarray) -> np.ndarray:
+    """RGB uint8 [H,W,3] of an RGBA image [H,W,4] composited over white."""
+    alpha = rgba[..., 3:].astype(np.float64) / 255.0
+    return np.round(rgba[..., :3] * alpha + 255.0 * (1.0 - alpha)).astype(np.uint8)

@@ -16,7 +16,7 @@ import trimesh
 
 from ushape import atomic
 from ushape.data.cameras import look_at
-from ushape.data.rendering import render_mesh
+from ushape.data.rendering import on_white, render_mesh
 from ushape.evaluation.protocols import group_views
 from ushape.evaluation.reconstruct import decode_mesh
 from ushape.fusion.rules import fuse_average, fuse_bayesian
@@ -40,8 +40,7 @@ def render_uncertainty(mesh: trimesh.Trimesh, std: np.ndarray, image_size: int =
     face_colours = uncertainty_colours(np.asarray(std)[mesh.faces].mean(axis=1))
     rgba = render_mesh(mesh, *look_at(image_size=image_size, **PREVIEW_VIEW), image_size,
                        colour_fn=lambda points, face: face_colours[face])["rgba"]
-    alpha = rgba[..., 3:].astype(np.float32) / 255.0
-    return np.round(rgba[..., :3] * alpha + 255.0 * (1.0 - alpha)).astype(np.uint8)
+    return on_white(rgba)
 
 
 def save_showcase(run, encodings, out_dir: str | Path, group_size: int, n_shapes: int = 2, resolution: int = 64,

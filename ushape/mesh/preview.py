@@ -6,7 +6,7 @@ import numpy as np
 import trimesh
 
 from ushape.data.cameras import look_at
-from ushape.data.rendering import render_mesh
+from ushape.data.rendering import on_white, render_mesh
 
 # Three-quarter view from above that frames the unit sphere of the normalised frame.
 PREVIEW_VIEW = {"azimuth_deg": 45.0, "elevation_deg": 25.0, "distance": 2.6, "fov_deg": 49.13}
@@ -16,6 +16,4 @@ def preview_image(mesh: trimesh.Trimesh | None, image_size: int = 128) -> np.nda
     """RGB uint8 [S, S, 3] of the mesh on white; a blank (white) picture when mesh is None."""
     if mesh is None or len(mesh.faces) == 0:
         return np.full((image_size, image_size, 3), 255, np.uint8)
-    rgba = render_mesh(mesh, *look_at(image_size=image_size, **PREVIEW_VIEW), image_size)["rgba"]
-    alpha = rgba[..., 3:].astype(np.float32) / 255.0
-    return np.round(rgba[..., :3] * alpha + 255.0 * (1.0 - alpha)).astype(np.uint8)
+    return on_white(render_mesh(mesh, *look_at(image_size=image_size, **PREVIEW_VIEW), image_size)["rgba"])
