@@ -35,10 +35,10 @@ def ellipsoid_sdf(xyz, a):
     return analytic.ellipsoid_sdf(xyz, a, B)
 
 
-SPHERE_DECODER = {"_target_": "ushape.decoder.analytic.EllipsoidDecoder", "latent_size": LATENT, "b": B}
+ELLIPSOID_DECODER = {"_target_": "ushape.decoder.analytic.EllipsoidDecoder", "latent_size": LATENT, "b": B}
 
 
-def SphereDecoder():  # noqa: N802  (reads as the class it builds)
+def ellipsoid_decoder() -> analytic.EllipsoidDecoder:
     return analytic.EllipsoidDecoder(latent_size=LATENT, b=B)
 
 
@@ -52,7 +52,7 @@ class FakePredictor:
     def __init__(self, checkpoint, probabilistic=True):
         self.checkpoint, self.temperature, self.image_size = checkpoint, None, IMAGE
         self.mask_mode, self.background_value, self.probabilistic = "gt_mask", 1.0, probabilistic
-        self.decoder = SphereDecoder()
+        self.decoder = ellipsoid_decoder()
 
     def encode(self, images):
         cover = (images.mean(dim=1) < 0.99).float().mean(dim=(1, 2))  # [V] fraction of object pixels

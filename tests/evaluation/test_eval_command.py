@@ -5,7 +5,7 @@ import warnings
 
 import pytest
 import torch
-from eval_world import RADII, SPHERE_DECODER, code_for_radius
+from eval_world import ELLIPSOID_DECODER, RADII, code_for_radius
 from hydra import compose, initialize_config_dir
 
 from ushape.decoder.artifacts import CodeTable, codes_file, save_codes, save_decoder
@@ -34,7 +34,7 @@ def _fit_run(world, tmp_path):
     from ushape.encoder.fit import fit_encoder
 
     decoder_dir = tmp_path / "decoder"
-    save_decoder(decoder_dir / "decoder.pt", torch.nn.Module(), SPHERE_DECODER)
+    save_decoder(decoder_dir / "decoder.pt", torch.nn.Module(), ELLIPSOID_DECODER)
     table = CodeTable(list(RADII), torch.tensor([[code_for_radius(r), 0.0, 0.0] for r in RADII.values()]))
     for split in ("train", "val", "test"):
         save_codes(decoder_dir / codes_file(split), table)
