@@ -27,7 +27,6 @@ from ushape import atomic
 log = logging.getLogger(__name__)
 
 DECODER_FILE = "decoder.pt"
-CHECKPOINT_DIR = "checkpoints"
 DONE_FILE = "DONE"
 
 

@@ -19,7 +19,6 @@ from ushape import atomic
 from ushape.checkpoints import resume_point
 from ushape.data.sdf_dataset import SDFSamplesDataset
 from ushape.decoder.artifacts import (
-    CHECKPOINT_DIR,
     DECODER_FILE,
     DONE_FILE,
     CodeTable,
@@ -30,10 +29,10 @@ from ushape.decoder.artifacts import (
 from ushape.decoder.autodecoder import AutoDecoderModule
 from ushape.decoder.datamodule import SDFDataModule
 from ushape.decoder.latent_optim import optimise_codes
+from ushape.workspace import CHECKPOINT_DIR, LAST_FILE
 
 log = logging.getLogger(__name__)
 
-LAST_CHECKPOINT = "last.ckpt"
 
 
 def fit_decoder(
@@ -65,7 +64,7 @@ def fit_decoder(
     model = build_module(decoder, module, datamodule.num_shapes)
     clock = TrainingClock()
     fitter = build_trainer(out_dir, model, trainer, checkpoint_every_n_epochs, logger, [clock, *callbacks])
-    resume = resume_point(out_dir / CHECKPOINT_DIR, LAST_CHECKPOINT)
+    resume = resume_point(out_dir / CHECKPOINT_DIR, LAST_FILE)
     fitter.fit(model, datamodule=datamodule, ckpt_path=str(resume) if resume else None)
     if fitter.interrupted:
         raise RuntimeError(f"stage-1 training was interrupted; rerun to resume from {out_dir / CHECKPOINT_DIR}")

@@ -17,12 +17,10 @@ from ushape.checkpoints import resume_point
 from ushape.data.render_dataset import EncoderDataModule
 from ushape.encoder.feature_cache import FeatureDataModule
 from ushape.encoder.module import EncoderModule
+from ushape.workspace import BEST_NAME, CHECKPOINT_DIR, LAST_FILE
 
 log = logging.getLogger(__name__)
 
-CHECKPOINT_DIR = "checkpoints"
-BEST_NAME = "best"
-LAST_FILE = "last.ckpt"
 
 
 class AtomicCheckpointIO(TorchCheckpointIO):

@@ -6,9 +6,9 @@ import json
 from pathlib import Path
 from typing import Sequence
 
-from ushape.experiment.summary import RUN_SUMMARY
+from ushape.workspace import MULTIRUN_DIR, RUN_SUMMARY, RUNS_DIR
 
-SEARCHED = (Path("outputs") / "runs", Path("outputs") / "multirun")
+SEARCHED = (RUNS_DIR, MULTIRUN_DIR)
 HINT = "train one first: `python train.py experiment=quickstart` (or `-m loss=es,nll,l2` for a sweep)"
 
 

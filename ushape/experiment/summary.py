@@ -11,8 +11,6 @@ from rich.tree import Tree
 
 from ushape import atomic
 
-RUN_SUMMARY = "run.json"  # a finished run's record: stage, world, decoder, checkpoint, meshes, seconds
-
 
 def print_config(cfg: DictConfig, save_to: Path | None = None) -> None:
     """Print the config one branch per group (Rich) and save the same text into the run folder."""

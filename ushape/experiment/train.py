@@ -15,17 +15,16 @@ from omegaconf import DictConfig, OmegaConf
 
 from ushape import atomic
 from ushape.data.layout import WorldIndex
-from ushape.decoder.artifacts import CHECKPOINT_DIR
 from ushape.decoder.basis import ensure_basis
-from ushape.decoder.fit import LAST_CHECKPOINT, fit_decoder
+from ushape.decoder.fit import fit_decoder
 from ushape.decoder.recode import ensure_codes
-from ushape.encoder.fit import CHECKPOINT_DIR as ENCODER_CHECKPOINTS
-from ushape.encoder.fit import LAST_FILE, fit_encoder
+from ushape.encoder.fit import fit_encoder
 from ushape.experiment.decoder_store import decoder_dir_for, ensure_decoder, legacy_decoder_dir_for
 from ushape.experiment.demo_meshes import write_demo_meshes
 from ushape.experiment.interrupts import resume_command, resume_exit, stopping_signal, watch_signals
-from ushape.experiment.summary import RUN_SUMMARY, discard_if_bookkeeping_only, print_config, print_summary
+from ushape.experiment.summary import discard_if_bookkeeping_only, print_config, print_summary
 from ushape.experiment.validation import ConfigError, check_config
+from ushape.workspace import CHECKPOINT_DIR, LAST_FILE, RUN_SUMMARY
 
 log = logging.getLogger(__name__)
 
@@ -68,7 +67,7 @@ def run(cfg: DictConfig) -> float | None:
 def _kept(cfg: DictConfig, out_dir: Path) -> list[str]:
     """What a rerun of a stopped run starts from: the checkpoints already written."""
     decoder_dir = legacy_decoder_dir_for(cfg) or decoder_dir_for(cfg)
-    found = [decoder_dir / CHECKPOINT_DIR / LAST_CHECKPOINT, out_dir / ENCODER_CHECKPOINTS / LAST_FILE]
+    found = [decoder_dir / CHECKPOINT_DIR / LAST_FILE, out_dir / CHECKPOINT_DIR / LAST_FILE]
     kept = [f"{path} (resumed from)" for path in found if path.is_file()]
     return kept or ["the data world cache (built files are reused); no checkpoint was written yet"]
 

@@ -27,16 +27,21 @@ from torch import Tensor, nn
 
 from ushape.checkpoints import load_checkpoint
 from ushape.data.augment import IMAGE_SUFFIXES, CompositeBackground, load_rgba, resize
-from ushape.experiment.summary import RUN_SUMMARY, relocated
+from ushape.experiment.summary import relocated
 from ushape.recalibration.temperature import apply_temperature
+from ushape.workspace import (
+    BEST_FILE,
+    CHECKPOINT_DIR,
+    HYDRA_CONFIG,
+    LAST_FILE,
+    RUN_SUMMARY,
+    RUNS_DIR,
+    TEMPERATURE_FILE,
+)
 
 log = logging.getLogger(__name__)
 
-TEMPERATURE_FILE = "temperature.json"
-HYDRA_CONFIG = Path(".hydra") / "config.yaml"
-RUNS_DIR = Path("outputs") / "runs"
-CHECKPOINT_DIR = "checkpoints"
-DEFAULT_CHECKPOINTS = (Path(CHECKPOINT_DIR) / "best.ckpt", Path(CHECKPOINT_DIR) / "last.ckpt")
+DEFAULT_CHECKPOINTS = (Path(CHECKPOINT_DIR) / BEST_FILE, Path(CHECKPOINT_DIR) / LAST_FILE)
 # An input whose longer side is more than this many times below the model's input size is warned about.
 SMALLEST_UPSCALE = 4
 NO_RUN_HINT = "train one with `make demo` / `python train.py experiment=quickstart`"
