@@ -68,6 +68,7 @@ def narrow_band_field(
         raise ValueError(f"band_cells must be an integer >= 0, got {band_cells!r}")
     if isinstance(far_resolution, bool) or not isinstance(far_resolution, int) or far_resolution < 2:
         raise ValueError(f"far_resolution must be an integer >= 2, got {far_resolution!r}")
+
     def sdf(points: Tensor) -> Tensor:  # [P, 3] -> [P]
         return decode_points(decoder, mu, points.to(mu.dtype), chunk)
 
