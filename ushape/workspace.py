@@ -13,8 +13,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-RUNS_DIR = Path("outputs") / "runs"
-MULTIRUN_DIR = Path("outputs") / "multirun"
+OUTPUTS_DIR = "outputs"  # every run, decoder and data cache lives under one outputs/ folder (conf/paths)
+RUNS_DIR = Path(OUTPUTS_DIR) / "runs"
+MULTIRUN_DIR = Path(OUTPUTS_DIR) / "multirun"
 RUN_SUMMARY = "run.json"
 HYDRA_CONFIG = Path(".hydra") / "config.yaml"
 CHECKPOINT_DIR = "checkpoints"
@@ -22,3 +23,22 @@ BEST_NAME = "best"
 LAST_FILE = "last.ckpt"
 BEST_FILE = f"{BEST_NAME}.ckpt"
 TEMPERATURE_FILE = "temperature.json"
+
+
+def relocated(recorded: str | Path, run_dir: Path | None) -> Path:
+    """A path recorded when `run_dir` was trained, found again if outputs/ has moved since.
+
+    Paths under outputs/ (the world, the stage-1 decoder) are looked up at the same place under the
+    outputs/ folder that holds `run_dir` now; a relative one recorded against the working directory
+    of the time is read against that outputs/ folder's parent. Anything else is returned as recorded.
+    """
+    path = Path(recorded)
+    if path.is_absolute() and path.exists() or run_dir is None:
+        return path
+    outputs = next((p for p in (run_dir.resolve(), *run_dir.resolve().parents) if p.name == OUTPUTS_DIR), None)
+    if outputs is not None and OUTPUTS_DIR in path.parts:
+        tail = path.parts[len(path.parts) - path.parts[::-1].index(OUTPUTS_DIR):]
+        candidate = outputs.joinpath(*tail)
+        if candidate.exists():
+            return candidate
+    return path

@@ -4,7 +4,7 @@ import matplotlib
 import pytest
 import torch
 
-from ushape.evaluation.calibration import (
+from ushape.scoring.calibration import (
     calibration_curve,
     calibration_error,
     plot_calibration,

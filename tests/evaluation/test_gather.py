@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from ushape.experiment.gather import gather, gather_rows, main
+from ushape.evaluation.gather import gather, gather_rows, main
 
 
 def _job(sweep, name, overrides, rows):

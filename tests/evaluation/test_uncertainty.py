@@ -5,7 +5,6 @@ import math
 import pytest
 import torch
 
-from ushape.evaluation.scores import energy_score_1d
 from ushape.evaluation.uncertainty import (
     latent_nll,
     latent_report,
@@ -13,6 +12,7 @@ from ushape.evaluation.uncertainty import (
     region_masks,
     sdf_region_scores,
 )
+from ushape.scoring.scores import energy_score_1d
 
 
 class LinearDecoder(torch.nn.Module):

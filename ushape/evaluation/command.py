@@ -90,7 +90,7 @@ def run_eval(cfg: DictConfig) -> float | None:
 
 def _evaluate(cfg: DictConfig) -> float | None:
     if cfg.get("gather"):
-        from ushape.experiment.gather import gather
+        from ushape.evaluation.gather import gather
 
         markdown = gather(cfg.gather)
         print(markdown.read_text())

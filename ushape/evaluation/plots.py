@@ -5,8 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Sequence
 
-from ushape.evaluation.calibration import plot_calibration
 from ushape.evaluation.tables import encoder_order
+from ushape.scoring.calibration import plot_calibration
 
 __all__ = ["iou_vs_k", "iou_vs_min_scale", "plot_calibration", "save_figure"]
 

@@ -64,23 +64,3 @@ def discard_if_bookkeeping_only(run_dir: Path) -> bool:
     return True
 
 
-OUTPUTS_DIR = "outputs"  # every run, decoder and data cache lives under one outputs/ folder (conf/paths)
-
-
-def relocated(recorded: str | Path, run_dir: Path | None) -> Path:
-    """A path recorded when `run_dir` was trained, found again if outputs/ has moved since.
-
-    Paths under outputs/ (the world, the stage-1 decoder) are looked up at the same place under the
-    outputs/ folder that holds `run_dir` now; a relative one recorded against the working directory
-    of the time is read against that outputs/ folder's parent. Anything else is returned as recorded.
-    """
-    path = Path(recorded)
-    if path.is_absolute() and path.exists() or run_dir is None:
-        return path
-    outputs = next((p for p in (run_dir.resolve(), *run_dir.resolve().parents) if p.name == OUTPUTS_DIR), None)
-    if outputs is not None and OUTPUTS_DIR in path.parts:
-        tail = path.parts[len(path.parts) - path.parts[::-1].index(OUTPUTS_DIR):]
-        candidate = outputs.joinpath(*tail)
-        if candidate.exists():
-            return candidate
-    return path

@@ -27,7 +27,6 @@ from torch import Tensor, nn
 
 from ushape.checkpoints import load_checkpoint
 from ushape.data.augment import IMAGE_SUFFIXES, CompositeBackground, load_rgba, resize
-from ushape.experiment.summary import relocated
 from ushape.recalibration.temperature import apply_temperature
 from ushape.workspace import (
     BEST_FILE,
@@ -37,6 +36,7 @@ from ushape.workspace import (
     RUN_SUMMARY,
     RUNS_DIR,
     TEMPERATURE_FILE,
+    relocated,
 )
 
 log = logging.getLogger(__name__)
