@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from data_toy_shapes import toy_shape_factory
 
-from ushape.data.render_dataset import view_files
 from ushape.data.world import SyntheticWorld, open_world
+from ushape.encoder.datamodule import view_files
 
 TINY = dict(n_train=2, n_val=1, n_test=1, samples_per_shape=200, n_views=3, image_size=24, mesh_resolution=32)
 

@@ -6,7 +6,7 @@ import torch
 from lightning.pytorch.loggers import TensorBoardLogger
 from torch import nn
 
-from ushape.data.render_dataset import EncoderDataModule
+from ushape.encoder.datamodule import EncoderDataModule
 from ushape.encoder.figures import mesh_panel, render_code
 from ushape.encoder.module import EncoderModule
 

@@ -2,7 +2,7 @@
 
 import torch
 
-from ushape.data.render_dataset import EncoderDataModule
+from ushape.encoder.datamodule import EncoderDataModule
 from ushape.encoder.feature_cache import FeatureDataModule
 from ushape.encoder.fit import fit_encoder
 from ushape.encoder.module import EncoderModule

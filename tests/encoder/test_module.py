@@ -6,7 +6,7 @@ import lightning as L
 import pytest
 import torch
 
-from ushape.data.render_dataset import EncoderDataModule
+from ushape.encoder.datamodule import EncoderDataModule
 from ushape.encoder.fit import fit_encoder
 from ushape.encoder.losses import energy_score, l2_loss
 from ushape.encoder.module import EncoderModule, loss_config

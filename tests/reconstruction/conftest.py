@@ -8,7 +8,7 @@ from tiny_render_world import write_decoder_folder, write_render_world
 
 from ushape import atomic
 from ushape.data.cameras import look_at
-from ushape.data.render_dataset import EncoderDataModule
+from ushape.encoder.datamodule import EncoderDataModule
 from ushape.encoder.module import EncoderModule
 
 LATENT = 8

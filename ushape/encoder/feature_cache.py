@@ -25,7 +25,7 @@ from torch import Tensor
 from torch.utils.data import ConcatDataset, DataLoader, Dataset
 
 from ushape import atomic
-from ushape.data.render_dataset import EncoderDataModule, RenderDataset, SplitLoaders
+from ushape.encoder.datamodule import EncoderDataModule, RenderDataset, SplitLoaders
 
 log = logging.getLogger(__name__)
 

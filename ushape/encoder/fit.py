@@ -14,7 +14,7 @@ from omegaconf import OmegaConf
 
 from ushape import atomic
 from ushape.checkpoints import resume_point
-from ushape.data.render_dataset import EncoderDataModule
+from ushape.encoder.datamodule import EncoderDataModule
 from ushape.encoder.feature_cache import FeatureDataModule
 from ushape.encoder.module import EncoderModule
 from ushape.workspace import BEST_NAME, CHECKPOINT_DIR, LAST_FILE

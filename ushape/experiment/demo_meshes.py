@@ -16,7 +16,7 @@ from pathlib import Path
 
 from ushape import atomic
 from ushape.data.layout import WorldIndex
-from ushape.data.render_dataset import view_files
+from ushape.encoder.datamodule import view_files
 from ushape.fusion import BayesianFusion
 from ushape.mesh.extraction import EmptySurfaceError
 from ushape.reconstruction.pipeline import ReconstructionSettings, reconstruct

@@ -14,8 +14,8 @@ import torch
 from torch.utils.data import DataLoader
 
 from ushape import atomic
-from ushape.data.render_dataset import RenderDataset
 from ushape.decoder.artifacts import codes_file, load_codes
+from ushape.encoder.datamodule import RenderDataset
 from ushape.recalibration.temperature import fit_temperature, gaussian_nll_with_temperature
 from ushape.reconstruction.predictor import Predictor, temperature_path
 

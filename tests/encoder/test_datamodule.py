@@ -6,8 +6,8 @@ import pytest
 import torch
 
 from ushape.data.augment import build_transform
-from ushape.data.render_dataset import EncoderDataModule, RenderDataset
 from ushape.decoder.artifacts import CodeTable, load_codes
+from ushape.encoder.datamodule import EncoderDataModule, RenderDataset
 
 
 def test_items_pair_each_view_with_its_code(world, decoder_dir, world_spec):
