@@ -7,6 +7,7 @@ from ushape.data.cameras import R2N2_FOV_DEG, look_at
 from ushape.data.rendering import pixel_rays
 from ushape.decoder.network import DeepSDFDecoder
 from ushape.propagation.decoding import frozen
+from ushape.propagation.monte_carlo import sample_codes
 from ushape.reconstruction.depth_implicit import (
     depth_sensitivity,
     depth_stats,
@@ -14,7 +15,7 @@ from ushape.reconstruction.depth_implicit import (
     hit_gradients,
     std_agreement,
 )
-from ushape.reconstruction.sphere_tracing import DepthStats, depth_uncertainty, sample_codes
+from ushape.reconstruction.sphere_tracing import DepthStats, depth_uncertainty
 
 NORMAL = torch.tensor([1.0, 0.3, -0.2]) / torch.tensor([1.0, 0.3, -0.2]).norm()
 OFFSET = 0.2

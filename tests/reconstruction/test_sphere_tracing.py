@@ -6,7 +6,8 @@ import numpy as np
 import torch
 
 from ushape.data.cameras import look_at
-from ushape.reconstruction.sphere_tracing import depth_uncertainty, ray_box, sample_codes, sphere_trace
+from ushape.propagation.monte_carlo import sample_codes
+from ushape.reconstruction.sphere_tracing import depth_uncertainty, ray_box, sphere_trace
 
 
 class SphereDecoder(torch.nn.Module):

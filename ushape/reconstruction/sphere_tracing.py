@@ -91,12 +91,6 @@ def depth_statistics(depth: Tensor, hit: Tensor, image_hw: tuple[int, int]) -> D
     return DepthStats(mean.reshape(image_hw), std.reshape(image_hw), (count / depth.shape[0]).reshape(image_hw))
 
 
-def sample_codes(mu: Tensor, var: Tensor, n: int, generator: torch.Generator | None = None) -> Tensor:
-    """n codes [n, D] from the diagonal Gaussian N(mu [D], var [D]) in latent space."""
-    noise = torch.randn(n, mu.shape[-1], generator=generator, dtype=mu.dtype)
-    return mu + noise * var.sqrt()
-
-
 def camera_rays(
     K: np.ndarray,  # [3, 3] for an image of image_hw
     world_to_cam: np.ndarray,  # [4, 4]
