@@ -6,8 +6,8 @@ import pytest
 import torch
 from scipy.optimize import minimize_scalar
 
+from ushape.metrics.calibration import calibration_curve, calibration_error
 from ushape.recalibration import apply_temperature, fit_temperature, gaussian_nll_with_temperature
-from ushape.scoring.calibration import calibration_curve, calibration_error
 
 
 def _validation(scale, n=4000, d=16, seed=0):

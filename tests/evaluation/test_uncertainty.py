@@ -12,7 +12,7 @@ from ushape.evaluation.uncertainty import (
     region_masks,
     sdf_region_scores,
 )
-from ushape.scoring.scores import energy_score_1d
+from ushape.metrics.scores import energy_score_1d
 
 
 class LinearDecoder(torch.nn.Module):

@@ -6,7 +6,7 @@ import torch
 from torch import Tensor
 
 from ushape.encoder.losses import energy_score, gaussian_nll
-from ushape.scoring.calibration import calibration_curve, calibration_error
+from ushape.metrics.calibration import calibration_curve, calibration_error
 
 
 def latent_l2(mu: Tensor, target: Tensor) -> Tensor:

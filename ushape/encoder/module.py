@@ -26,7 +26,7 @@ from ushape.encoder.figures import mesh_panel, render_code
 from ushape.encoder.heads import GaussianEnsemble, ImageEncoder
 from ushape.encoder.latent_metrics import latent_scores
 from ushape.encoder.losses import l2_loss
-from ushape.scoring.calibration import calibration_curve, plot_calibration
+from ushape.metrics.calibration import calibration_curve, plot_calibration
 
 LossFn = Callable[..., Tensor]
 

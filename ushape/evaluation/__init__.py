@@ -1,6 +1,5 @@
 """Evaluation: the paper's metrics, protocols, tables and plots (what `python eval.py` runs).
 
-    metrics               Pix3D's IoU (32^3 voxels), Chamfer and EMD (1024 points), per-shape unit boxes
     uncertainty           latent / SDF-space ES and NLL, surface split, SDF propagation with clamping
     views                 deterministic corrupted views and cached encodings
     reconstruct           code -> SDF grid -> mesh and voxels -> metrics, cached by the code's hash
@@ -10,6 +9,7 @@
     tables, plots, report, showcase   the paper's tables, figures, result files, meshes with uncertainty
     command, gather       eval.py's config -> evaluation; one table from a sweep's evaluation rows
 
-Import the module you need; this package imports nothing itself, so `import ushape.evaluation.metrics`
-does not pull in matplotlib. Calibration curves and proper scores live in ushape.scoring.
+Import the module you need; this package imports nothing itself, so importing one module does not
+pull in matplotlib. The scoring maths it uses (Pix3D's IoU, Chamfer and EMD; proper scores;
+calibration) lives in ushape.metrics.
 """

@@ -29,9 +29,9 @@ from ushape.encoder.latent_metrics import spearman_correlation
 from ushape.evaluation.locality import render_cameras
 from ushape.evaluation.protocols import EncoderSpec
 from ushape.evaluation.views import Encodings, view_seed
+from ushape.metrics.calibration import calibration_curve, calibration_error, two_sided_quantile
 from ushape.propagation.monte_carlo import sample_codes
 from ushape.reconstruction.depth_implicit import depth_stats
-from ushape.scoring.calibration import calibration_curve, calibration_error, two_sided_quantile
 
 COVERAGE_LEVELS = {"coverage_68": 0.68, "coverage_95": 0.95}
 log = logging.getLogger(__name__)

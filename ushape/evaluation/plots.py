@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Sequence
 
 from ushape.evaluation.tables import encoder_order
-from ushape.scoring.calibration import plot_calibration
+from ushape.metrics.calibration import plot_calibration
 
 __all__ = ["iou_vs_k", "iou_vs_min_scale", "plot_calibration", "save_figure"]
 

@@ -23,7 +23,8 @@ from torch import Tensor
 
 from ushape import atomic
 from ushape.data.layout import WorldIndex
-from ushape.evaluation.metrics import (
+from ushape.mesh.extraction import EmptySurfaceError, marching_cubes, sdf_grid
+from ushape.metrics.pix3d import (
     PIX3D_POINTS,
     PIX3D_VOXELS,
     InsideFn,
@@ -31,7 +32,6 @@ from ushape.evaluation.metrics import (
     pix3d_metrics,
     reference_from_mesh,
 )
-from ushape.mesh.extraction import EmptySurfaceError, marching_cubes, sdf_grid
 from ushape.propagation import decode_points, frozen
 
 # An empty reconstruction overlaps nothing; CD and EMD have no value.

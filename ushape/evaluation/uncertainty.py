@@ -20,8 +20,8 @@ from torch import Tensor
 
 from ushape.encoder.latent_metrics import latent_scores
 from ushape.encoder.losses import gaussian_nll
+from ushape.metrics.scores import energy_score_1d, gaussian_nll_1d
 from ushape.propagation import propagate, propagate_mc
-from ushape.scoring.scores import energy_score_1d, gaussian_nll_1d
 
 SURFACE_BAND = 0.01
 EQUAL_VARIANCE = 1.0

@@ -22,7 +22,7 @@ from ushape.encoder.latent_metrics import latent_l2, variance_tracks_error
 from ushape.evaluation.protocols import EncoderSpec, summarise
 from ushape.evaluation.uncertainty import EQUAL_VARIANCE, latent_report, propagate_to_sdf, sdf_region_scores
 from ushape.evaluation.views import Encodings
-from ushape.scoring.calibration import calibration_curve, calibration_error
+from ushape.metrics.calibration import calibration_curve, calibration_error
 
 PROPAGATION_METHODS = ("mc", "linearised")
 

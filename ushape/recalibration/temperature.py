@@ -13,7 +13,7 @@ import math
 import torch
 from torch import Tensor
 
-from ushape.scoring.scores import gaussian_nll_1d
+from ushape.metrics.scores import gaussian_nll_1d
 
 
 def _check(mu: Tensor, var: Tensor, target: Tensor) -> None:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from ushape.evaluation.metrics import (
+from ushape.metrics.pix3d import (
     BoxFrame,
     box_frame,
     chamfer_pix3d,

@@ -7,7 +7,7 @@ import pytest
 import scoringrules
 import torch
 
-from ushape.scoring.scores import energy_score_1d, gaussian_nll_1d
+from ushape.metrics.scores import energy_score_1d, gaussian_nll_1d
 
 
 def test_nll_known_values():

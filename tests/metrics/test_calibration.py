@@ -4,7 +4,7 @@ import matplotlib
 import pytest
 import torch
 
-from ushape.scoring.calibration import (
+from ushape.metrics.calibration import (
     calibration_curve,
     calibration_error,
     plot_calibration,
