@@ -33,7 +33,7 @@ bench: install
 	$(PY) bench.py $(ARGS)
 
 gallery: install
-	$(PY) -m ushape.data.preview $(ARGS)
+	$(VENV)/bin/ushape gallery $(ARGS)
 
 clean:
 	rm -rf $(VENV) outputs multirun .pytest_cache

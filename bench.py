@@ -2,10 +2,7 @@
 
 import sys
 
-import ushape  # noqa: F401  (first: repairs the CPU-torch / CUDA-torchvision mismatch)
-
-# isort: split
-from ushape.bench.cli import main
+from ushape.cli import main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(["bench", *sys.argv[1:]], prog=sys.argv[0]))

@@ -4,20 +4,9 @@
     python train.py -m loss=es,nll,l2                                      # a sweep sharing one decoder
 """
 
-import ushape  # noqa: F401  (first: makes torchvision/lightning importable on CPU torch)
+import sys
 
-# isort: split
-
-import hydra
-from omegaconf import DictConfig
-
-from ushape.experiment.train import run
-
-
-@hydra.main(version_base="1.3", config_path="conf", config_name="train")
-def main(cfg: DictConfig) -> float | None:
-    return run(cfg)
-
+from ushape.cli import main
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main(["train", *sys.argv[1:]], prog=sys.argv[0]))

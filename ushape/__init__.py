@@ -1,8 +1,7 @@
 """ushape: uncertainty-aware 3D object reconstruction from images with a neural shape prior.
 
-The data's way through the package:
-shapes -> data (SDF samples, renders) -> decoder (stage 1) -> encoder (stage 2)
--> fusion -> propagation -> mesh -> evaluation.
+The packages follow the data's way (the order is in the README's "Package layout" and checked by
+tests/test_import_flow.py); `ushape <command>` (ushape.cli) runs everything.
 """
 
 from ushape.torchvision_cpu import ensure_torchvision_importable

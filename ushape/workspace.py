@@ -13,6 +13,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+# The Hydra configs. Shipped inside the package (ushape/conf links to the checkout's top-level conf/,
+# and the wheel carries the files), so an installed ushape finds them wherever it runs.
+CONFIG_DIR = Path(__file__).resolve().parent / "conf"
 OUTPUTS_DIR = "outputs"  # every run, decoder and data cache lives under one outputs/ folder (conf/paths)
 RUNS_DIR = Path(OUTPUTS_DIR) / "runs"
 MULTIRUN_DIR = Path(OUTPUTS_DIR) / "multirun"

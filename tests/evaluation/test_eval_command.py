@@ -4,11 +4,9 @@ import json
 import warnings
 
 import pytest
-import torch
-from eval_world import ELLIPSOID_DECODER, RADII, code_for_radius
+from eval_world import fit_sphere_run
 from hydra import compose, initialize_config_dir
 
-from ushape.decoder.artifacts import CodeTable, codes_file, save_codes, save_decoder
 from ushape.evaluation.command import configured_setting, protocols_for, run_eval
 from ushape.evaluation.runner import PROTOCOLS
 
@@ -29,31 +27,9 @@ def test_sweep_jobs_score_only_their_setting_unless_told_otherwise():
     assert configured_setting(_compose(["fusion=average"]))[1:] == ("average", 1.0)
 
 
-def _fit_run(world, tmp_path):
-    """A finished encoder run folder (run.json + checkpoint) trained for a few steps on the ellipsoid world."""
-    from ushape.encoder.fit import fit_encoder
-
-    decoder_dir = tmp_path / "decoder"
-    save_decoder(decoder_dir / "decoder.pt", torch.nn.Module(), ELLIPSOID_DECODER)
-    table = CodeTable(list(RADII), torch.tensor([[code_for_radius(r), 0.0, 0.0] for r in RADII.values()]))
-    for split in ("train", "val", "test"):
-        save_codes(decoder_dir / codes_file(split), table)
-    run_dir = tmp_path / "run"
-    encoder = {"backbone": {"_target_": "ushape.encoder.backbones.resnet18", "pretrained": False}, "latent_size": 3}
-    checkpoint = fit_encoder(world.root, decoder_dir, run_dir, encoder=encoder,
-                             loss={"_target_": "ushape.encoder.losses.gaussian_nll"},
-                             module={"lr": 0.01, "val_samples": 16}, data={"image_size": 16, "batch_size": 8},
-                             trainer={"accelerator": "cpu", "max_epochs": 1, "limit_train_batches": 1,
-                                      "limit_val_batches": 1, "num_sanity_val_steps": 0, "enable_progress_bar": False,
-                                      "enable_model_summary": False}, logger=False)
-    (run_dir / "run.json").write_text(json.dumps({"stage": "encoder", "world": str(world.root),
-                                                  "decoder_dir": str(decoder_dir), "encoder_checkpoint": str(checkpoint)}))
-    return run_dir
-
-
 def test_eval_writes_tables_and_the_setting_row_for_a_real_run(sphere_world, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("USHAPE_ROOT", str(tmp_path))
-    run_dir = _fit_run(sphere_world, tmp_path)
+    run_dir = fit_sphere_run(sphere_world, tmp_path)
     out = tmp_path / "eval"
     cfg = _compose([f"runs=[{run_dir}]", f"cache_dir={tmp_path / 'cache'}", "tensorboard=false",
                     "protocols=[single_view,uncertainty]", "settings.resolution=24", "settings.n_points=128",

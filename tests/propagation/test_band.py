@@ -2,8 +2,8 @@
 
 import pytest
 import torch
+from analytic_decoder import EllipsoidDecoder
 
-from ushape.decoder.analytic import EllipsoidDecoder
 from ushape.mesh.extraction import marching_cubes
 from ushape.propagation.field import field_uncertainty, narrow_band_field
 

@@ -33,8 +33,7 @@ from ushape.mesh.extraction import extract_mesh, marching_cubes
 from ushape.propagation.decoding import frozen
 from ushape.propagation.field import decode_field, narrow_band_field
 from ushape.propagation.mesh import grid_points, propagate, vertex_uncertainty
-
-CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
+from ushape.workspace import CONFIG_DIR
 
 
 @dataclass(frozen=True)
@@ -59,7 +58,7 @@ def bench_decoder(config_name: str, decoder_dir: str | Path | None = None, fit_s
         decoder = load_decoder(decoder_dir)
         table = load_codes(Path(decoder_dir) / codes_file("test"))
         return decoder, table.codes[0], f"trained ({decoder_dir})"
-    path = CONF_DIR / "decoder" / f"{config_name}.yaml"
+    path = CONFIG_DIR / "decoder" / f"{config_name}.yaml"
     if not path.is_file():
         raise FileNotFoundError(f"no decoder config {path}; choose one of conf/decoder/*.yaml")
     config = OmegaConf.load(path)
@@ -99,7 +98,7 @@ def fusion_rows(settings: BenchSettings, latent_size: int) -> list[Measurement]:
 
 def encoder_row(encoder_config: str, image_size: int, latent_size: int, repeats: int = 5) -> Measurement:
     """One image through a random-weight encoder of conf/encoder/<encoder_config>.yaml."""
-    config = OmegaConf.load(CONF_DIR / "encoder" / f"{encoder_config}.yaml")
+    config = OmegaConf.load(CONFIG_DIR / "encoder" / f"{encoder_config}.yaml")
     config.latent_size = latent_size
     config.backbone.pretrained = False
     encoder = instantiate(config, _recursive_=False).eval()

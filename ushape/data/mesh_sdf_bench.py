@@ -1,6 +1,6 @@
 """Measure the real-mesh SDF signs: known-answer meshes, agreement with official voxels, time per mesh.
 
-    python -m ushape.data.mesh_sdf_bench --real-root ../shared/data/real_sample \
+    ushape sign-bench --real-root ../shared/data/real_sample \
         [--baseline old_mesh_sdf.py] [--samples 30000] [--timing-samples 250000] [--json out.json]
 
 `--baseline` names another version of ushape/data/mesh_sdf.py (e.g. `git show <commit>:ushape/data/mesh_sdf.py
@@ -14,7 +14,6 @@ import argparse
 import importlib.util
 import json
 import os
-import sys
 import time
 from pathlib import Path
 from types import ModuleType
@@ -168,7 +167,3 @@ def main(argv: Optional[list[str]] = None) -> int:
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,7 +1,7 @@
 """Gallery of synthetic shapes: a grid of shapes, each as a few renders on white, labelled with its style.
 
-    python -m ushape.data.preview --category chairs --n 16 --out outputs/gallery_chairs.png
-    python -m ushape.data.preview --category tables --root outputs/data/synthetic --n-train 32
+    ushape gallery --category chairs --n 16 --out outputs/gallery_chairs.png
+    ushape gallery --category tables --root outputs/data/synthetic --n-train 32
 
 Without --root the shapes are generated and rendered in memory (nothing cached); with
 --root the world is built (or reused) there and its cached renders are shown.
@@ -133,7 +133,3 @@ def main(argv: Optional[Sequence[str]] = None) -> Path:
         compose_gallery(cells, args.columns).save(tmp, format="PNG")
     print(f"wrote {out} ({len(cells)} shapes)")
     return out
-
-
-if __name__ == "__main__":
-    main()

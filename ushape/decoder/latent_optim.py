@@ -15,7 +15,7 @@ from torch import Tensor, nn
 
 from ushape.data.sdf_dataset import SDFSamplesDataset
 from ushape.decoder.losses import code_prior
-from ushape.decoder.query import decoder_autocast, frozen
+from ushape.decoder.query import decoder_autocast, decoder_device, frozen
 
 SampleSource = Sequence[tuple[Tensor, Tensor]] | SDFSamplesDataset
 
@@ -37,7 +37,7 @@ def optimise_codes(
     sdf_samples: a list of (xyz [N, 3], sdf [N]) per shape, or an SDFSamplesDataset (all its samples).
     """
     pos, pos_count, neg, neg_count = _padded_by_sign(sdf_samples)
-    device = next(decoder.parameters()).device
+    device = decoder_device(decoder)
     pos, pos_count, neg, neg_count = (t.to(device) for t in (pos, pos_count, neg, neg_count))
     generator = torch.Generator(device="cpu").manual_seed(seed)
     num_shapes, latent_size = pos.shape[0], decoder.latent_size

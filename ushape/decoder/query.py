@@ -18,6 +18,12 @@ def decoder_autocast(device: torch.device | str, enabled: bool) -> torch.autocas
     return torch.autocast(device_type=device_type, dtype=torch.bfloat16, enabled=enabled)
 
 
+def decoder_device(decoder: nn.Module, default: torch.device | str = "cpu") -> torch.device:
+    """Where the decoder's weights live; `default` for a decoder without any (an analytic SDF)."""
+    parameter = next(decoder.parameters(), None)
+    return torch.device(default) if parameter is None else parameter.device
+
+
 def code_sdf_fn(decoder: nn.Module, code: Tensor, bf16: bool = False) -> Callable[[Tensor], Tensor]:
     """points [P, 3] -> sdf [P] (float32, on the points' device) of the decoder at code [D].
 
@@ -26,7 +32,7 @@ def code_sdf_fn(decoder: nn.Module, code: Tensor, bf16: bool = False) -> Callabl
     """
     if code.ndim != 1:
         raise ValueError(f"code must be one latent vector [D], got {tuple(code.shape)}")
-    device = next(decoder.parameters()).device
+    device = decoder_device(decoder, code.device)
     code = code.detach().to(device)
     folded = None if bf16 else fold_code(decoder, code)
     if folded is not None:

@@ -1,6 +1,6 @@
 """How good is a stage-1 decoder? Mesh its codes and score them against the ground truth.
 
-    python -m ushape.decoder.report outputs/decoders/chairs-<hash> --shapes 8
+    ushape report outputs/decoders/chairs-<hash> --shapes 8
 
 For each split, the first `--shapes` shapes are meshed from their code (train: auto-decoded;
 val/test: latent-optimised with the decoder frozen) and scored with DeepSDF's Chamfer
@@ -94,13 +94,13 @@ def _world_root(decoder_dir: Path) -> Path:
     return Path(root)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("decoder_dir")
     parser.add_argument("--shapes", type=int, default=8, help="shapes scored per split")
     parser.add_argument("--resolution", type=int, default=128, help="marching-cubes grid")
     parser.add_argument("--world", default=None, help="the data folder, if the decoder folder does not record it")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     result = report(args.decoder_dir, args.shapes, args.resolution, args.world)
     for split in ("train", "val", "test"):
@@ -108,7 +108,3 @@ def main() -> None:
         print(f"{split:5s}  Chamfer mean {r['chamfer_mean']:.5f}  median {r['chamfer_median']:.5f}  "
               f"IoU {r['iou_mean']:.3f}  empty {r['empty']}/{len(r['shapes'])}")
     print(f"pictures: {Path(args.decoder_dir) / 'report_<split>.png'}")
-
-
-if __name__ == "__main__":
-    main()

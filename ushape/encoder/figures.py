@@ -5,7 +5,6 @@ from __future__ import annotations
 from typing import Sequence
 
 import numpy as np
-import torch
 from matplotlib.figure import Figure
 from torch import Tensor, nn
 
@@ -17,17 +16,11 @@ def render_code(decoder: nn.Module, code: Tensor, resolution: int = 48, image_si
     """RGBA uint8 [S, S, 4] of the decoder's mesh for one code [D] from `MESH_VIEW`; None if no surface."""
     from ushape.data.cameras import look_at
     from ushape.data.rendering import render_mesh
+    from ushape.decoder.query import code_sdf_fn
     from ushape.mesh.extraction import EmptySurfaceError, extract_mesh
 
-    code = code.detach().float()
-    decoder_device = next(decoder.parameters()).device
-
-    @torch.no_grad()
-    def sdf_fn(points: Tensor) -> Tensor:
-        return decoder(points.to(decoder_device), code.to(decoder_device)).float().cpu()
-
     try:
-        mesh, _ = extract_mesh(sdf_fn, resolution=resolution, method="dense")
+        mesh, _ = extract_mesh(code_sdf_fn(decoder, code.detach().float()), resolution=resolution, method="dense")
     except EmptySurfaceError:
         return None
     K, world_to_cam = look_at(image_size=image_size, **MESH_VIEW)

@@ -1,7 +1,7 @@
 """Gather an evaluation sweep's result rows into one table.
 
     python eval.py -m fusion=bayesian_k fusion.k=1,2,4,10 crop.min_scale=1.0,0.1
-    python -m ushape.evaluation.gather outputs/multirun/<date>/<time>
+    ushape gather outputs/multirun/<date>/<time>
 
 Each job folder of the sweep holds eval_row.json (its fusion rule / crop setting's rows, one per
 encoder) and .hydra/overrides.yaml (what the job changed); the gathered table has one row per
@@ -86,7 +86,3 @@ def main(argv: list[str] | None = None) -> None:
     markdown = gather(args.sweep)
     print(markdown.read_text())
     print(f"written: {markdown} and {markdown.with_suffix('.csv')}")
-
-
-if __name__ == "__main__":
-    main()

@@ -81,7 +81,9 @@ def resume_command(argv: Sequence[str], run_dir: Path | None) -> str:
         key, folder = ("hydra.sweep.dir", run_dir.parent) if multirun else ("hydra.run.dir", run_dir)
         if not any(a.startswith(f"{key}=") for a in args):
             args.append(f"{key}={folder}")
-    return shlex.join(["python", *args])
+    # argv[0] is a root script (python train.py ...) or the installed command (ushape train ...).
+    program = ["python", args[0]] if args[0].endswith(".py") else shlex.split(args[0])
+    return shlex.join([*program, *args[1:]])
 
 
 def resume_exit(signum: int, command: str, kept: Sequence[str]) -> SystemExit:

@@ -30,8 +30,9 @@ from ushape.reconstruction.depth_implicit import DEPTH_METHODS
 from ushape.reconstruction.pipeline import ReconstructionSettings, reconstruct
 from ushape.reconstruction.predictor import collect_inputs, load_predictor
 from ushape.reconstruction.temperature_store import fit_and_store_temperature
+from ushape.workspace import CONFIG_DIR
 
-FUSION_CONFIGS = Path(__file__).resolve().parents[2] / "conf" / "fusion"
+FUSION_CONFIGS = CONFIG_DIR / "fusion"
 DEFAULT_OUT = Path("outputs") / "reconstructions"
 
 

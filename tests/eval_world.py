@@ -9,6 +9,7 @@ code, and it reports a larger variance for a smaller visible object.
 import json
 import math
 
+import analytic_decoder as analytic
 import numpy as np
 import pytest
 import torch
@@ -17,8 +18,7 @@ from PIL import Image
 
 from ushape.data.cameras import look_at
 from ushape.data.layout import WorldIndex
-from ushape.decoder import analytic
-from ushape.decoder.artifacts import CodeTable, codes_file, save_codes
+from ushape.decoder.artifacts import CodeTable, codes_file, save_codes, save_decoder
 from ushape.evaluation.protocols import EncoderSpec
 from ushape.evaluation.reconstruct import Reconstructor
 from ushape.evaluation.runner import EncoderRun, Settings
@@ -35,7 +35,7 @@ def ellipsoid_sdf(xyz, a):
     return analytic.ellipsoid_sdf(xyz, a, B)
 
 
-ELLIPSOID_DECODER = {"_target_": "ushape.decoder.analytic.EllipsoidDecoder", "latent_size": LATENT, "b": B}
+ELLIPSOID_DECODER = {"_target_": "analytic_decoder.EllipsoidDecoder", "latent_size": LATENT, "b": B}
 
 
 def ellipsoid_decoder() -> analytic.EllipsoidDecoder:
@@ -148,3 +148,25 @@ def evaluated_dir(sphere_world, sphere_codes, tmp_path_factory):
         result = evaluate_all(runs, settings, tmp / "cache", (BayesianKFusion(k=2), "bayesian-2", 0.4), tmp / "out")
     write_results(result, tmp / "out")
     return tmp / "out"
+
+
+def fit_sphere_run(world, tmp_path):
+    """A finished encoder run folder (under tmp_path/run) (run.json + checkpoint) trained for a few steps on the ellipsoid world."""
+    from ushape.encoder.fit import fit_encoder
+
+    decoder_dir = tmp_path / "decoder"
+    save_decoder(decoder_dir / "decoder.pt", torch.nn.Module(), ELLIPSOID_DECODER)
+    table = CodeTable(list(RADII), torch.tensor([[code_for_radius(r), 0.0, 0.0] for r in RADII.values()]))
+    for split in ("train", "val", "test"):
+        save_codes(decoder_dir / codes_file(split), table)
+    run_dir = tmp_path / "run"
+    encoder = {"backbone": {"_target_": "ushape.encoder.backbones.resnet18", "pretrained": False}, "latent_size": 3}
+    checkpoint = fit_encoder(world.root, decoder_dir, run_dir, encoder=encoder,
+                             loss={"_target_": "ushape.encoder.losses.gaussian_nll"},
+                             module={"lr": 0.01, "val_samples": 16}, data={"image_size": 16, "batch_size": 8},
+                             trainer={"accelerator": "cpu", "max_epochs": 1, "limit_train_batches": 1,
+                                      "limit_val_batches": 1, "num_sanity_val_steps": 0, "enable_progress_bar": False,
+                                      "enable_model_summary": False}, logger=False)
+    (run_dir / "run.json").write_text(json.dumps({"stage": "encoder", "world": str(world.root),
+                                                  "decoder_dir": str(decoder_dir), "encoder_checkpoint": str(checkpoint)}))
+    return run_dir

@@ -1,8 +1,8 @@
 """A decoder with a known answer: the SDF of an ellipsoid whose x semi-axis the code sets.
 
-Drop-in for DeepSDFDecoder wherever a pipeline needs checking against exact geometry (tests,
-debugging an evaluation): `sdf(xyz, z)` broadcasts the same way, and `save_decoder` /
-`load_decoder` rebuild it from `{"_target_": "ushape.decoder.analytic.EllipsoidDecoder", ...}`.
+A test double: drop-in for DeepSDFDecoder wherever a pipeline needs checking against exact
+geometry; `sdf(xyz, z)` broadcasts the same way, and `save_decoder` / `load_decoder` rebuild it from
+`{"_target_": "analytic_decoder.EllipsoidDecoder", ...}` wherever tests/ is importable.
 """
 
 from __future__ import annotations
