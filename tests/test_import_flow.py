@@ -12,12 +12,12 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "ushape"
 
-# Building blocks (file I/O, run-folder names, checkpoints), then the data's way: procedural
-# shapes, datasets and rendering, grids and marching cubes, the scoring maths, stage 1,
-# stage 2, fusion, propagation, recalibration, and the commands built on all of them, with the
-# `ushape` command that runs each of them last.
+# Building blocks (file I/O, run-folder names, checkpoints, building configured objects), then the
+# data's way: procedural shapes, datasets and rendering, grids and marching cubes, the scoring maths,
+# stage 1, stage 2, fusion, propagation, recalibration, and the commands built on all of them, with
+# the `ushape` command that runs each of them last.
 FLOW = (
-    "torchvision_cpu", "atomic", "workspace", "checkpoints", "shapes", "data", "mesh", "metrics",
+    "torchvision_cpu", "atomic", "workspace", "checkpoints", "builders", "shapes", "data", "mesh", "metrics",
     "decoder", "encoder", "fusion", "propagation", "recalibration", "reconstruction", "experiment",
     "evaluation", "bench", "cli",
 )

@@ -23,7 +23,7 @@ TINY_PAPER = [
     "stage1.data.samples_per_shape=256", "stage1.data.val_num_shapes=1", "stage1.data.num_workers=0",
     "stage1.latent_optim.iterations=3", "stage1.latent_optim.samples_per_iter=256",
     "stage2.max_epochs=1", "stage2.data.image_size=32", "stage2.data.batch_size=3", "stage2.data.num_workers=0",
-    "stage2.module.lr=0.01",
+    "stage2.module.optimizer.lr=0.01",
     "stage2.module.log_meshes=false", "stage2.module.val_samples=20", "stage2.demo_meshes.shapes=0",
     "encoder.backbone.pretrained=false",
     # No GPU in the test suite: trainer=gpu's settings on the CPU, bf16-mixed included.

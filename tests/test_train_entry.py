@@ -21,8 +21,10 @@ TINY = [
 
 
 def test_sweep_over_losses_trains_one_decoder_and_two_encoders(tmp_path):
-    """Both encoders in the PCA latent basis: the rebased stage-1 folder is also written once and shared."""
-    result = run_command(tmp_path, "train.py", "-m", "loss=es,l2", "stage2.latent_basis=pca", *TINY)
+    """Both encoders in the PCA latent basis: the rebased stage-1 folder is also written once and shared.
+    The optimizer, fusion and callbacks groups reach what they configure."""
+    result = run_command(tmp_path, "train.py", "-m", "loss=es,l2", "stage2.latent_basis=pca", *TINY,
+                         "optimizer=adamw", "fusion=bayesian_k", "fusion.k=1", "callbacks=early_stopping")
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     runs = sorted((tmp_path / "outputs" / "multirun").glob("*/*/*/run.json"))
     assert len(runs) == 2, runs
@@ -37,11 +39,16 @@ def test_sweep_over_losses_trains_one_decoder_and_two_encoders(tmp_path):
         assert Path(s["encoder_checkpoint"]).exists()
         hparams = torch.load(s["encoder_checkpoint"], map_location="cpu", weights_only=False)["hyper_parameters"]
         assert Path(hparams["decoder_path"]) == basis_dir  # evaluation follows the rotated decoder
+        assert hparams["optimizer"]["_target_"] == "torch.optim.AdamW"
+        blob = torch.load(s["encoder_checkpoint"], map_location="cpu", weights_only=False)
+        assert any(key.startswith("EarlyStopping") for key in blob["callbacks"]), list(blob["callbacks"])
         # One val shape from its first view and from both views; a 1-epoch encoder may give no surface.
         folders = sorted(p.name for p in Path(s["meshes"]).iterdir())
         assert len(folders) == 2 and folders[0].endswith("_1view") and folders[1].endswith("_2views"), folders
         for folder in Path(s["meshes"]).iterdir():
             assert (folder / "mesh.ply").exists() or (folder / "empty_surface.txt").exists()
+            if (folder / "summary.json").exists():
+                assert json.loads((folder / "summary.json").read_text())["fusion"] == "bayesian-1"
     assert "Reusing the stage-1 decoder" in result.stdout + result.stderr
 
 

@@ -71,8 +71,8 @@ def test_reconstruct_eval_and_bench_run_from_the_installed_package(installed, tm
     assert (work / "rec" / "mesh.ply").is_file() and (work / "rec" / "summary.json").is_file()
 
     _ushape(installed, "eval", f"runs=[{run}]", "protocols=[single_view]", "tensorboard=false",
-            f"cache_dir={work / 'cache'}", "settings.resolution=16", "settings.n_points=64",
-            "settings.single_view_views=1", f"out_dir={work / 'eval'}")
+            f"cache_dir={work / 'cache'}", "protocol.resolution=16", "protocol.n_points=64",
+            "protocol.single_view_views=1", f"out_dir={work / 'eval'}")
     assert "Table 1" in (work / "eval" / "tables.md").read_text()
 
     _ushape(installed, "bench", "--quick", "--decoders", "small", "--depth-views", "0", "--out",

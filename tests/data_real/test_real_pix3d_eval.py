@@ -107,10 +107,10 @@ TINY_TRAIN = [
     "trainer.enable_progress_bar=false", "+trainer.enable_model_summary=false",
 ]
 TINY_EVAL = [
-    "data.samples_per_shape=3000", "data.image_size=32", "tensorboard=false", "settings.resolution=16",
-    "settings.n_points=64", "settings.sdf_points=64", "settings.mc_samples=2", "settings.code_iterations=5",
-    "settings.single_view_views=null", "settings.sdf_views=2", "settings.showcase_shapes=0",
-    "settings.calibration_levels=5", "settings.corrupted_scales=[0.4]", "settings.single_view_scales=[1.0,0.1]",
+    "data.samples_per_shape=3000", "data.image_size=32", "tensorboard=false", "protocol.resolution=16",
+    "protocol.n_points=64", "protocol.sdf_points=64", "protocol.mc_samples=2", "protocol.code_iterations=5",
+    "protocol.single_view_views=null", "protocol.sdf_views=2", "protocol.showcase_shapes=0",
+    "protocol.calibration_levels=5", "protocol.corrupted_scales=[0.4]", "protocol.single_view_scales=[1.0,0.1]",
 ]
 
 

@@ -9,7 +9,7 @@ import torch
 from ushape.encoder.datamodule import EncoderDataModule
 from ushape.encoder.fit import fit_encoder
 from ushape.encoder.losses import energy_score, l2_loss
-from ushape.encoder.module import EncoderModule, loss_config
+from ushape.encoder.module import EncoderModule, loss_config, optimizer_config
 
 ES = {"_target_": "ushape.encoder.losses.energy_score", "_partial_": True, "n_samples": 16}
 
@@ -32,6 +32,29 @@ def test_loss_config_round_trips_functions_and_partials():
     assert cfg == {"_target_": "ushape.encoder.losses.energy_score", "_partial_": True, "n_samples": 8}
     with pytest.raises(ValueError, match="_target_"):
         loss_config({"n_samples": 3})
+
+
+def test_optimizer_configs_and_the_names_older_checkpoints_hold():
+    adam = {"_target_": "torch.optim.Adam", "_partial_": True, "lr": 1e-3, "weight_decay": 0.0}
+    assert optimizer_config(adam) == adam
+    assert optimizer_config(adam, lr=0.01)["lr"] == 0.01  # a shorthand beside the config
+    assert optimizer_config("sgd") == {"_target_": "torch.optim.SGD", "_partial_": True, "lr": 0.1,
+                                       "weight_decay": 1e-4, "momentum": 0.9}
+    assert optimizer_config("adamw", lr=0.5)["_target_"] == "torch.optim.AdamW"
+    with pytest.raises(ValueError, match="_target_"):
+        optimizer_config({"lr": 0.1})
+    with pytest.raises(ValueError, match="adam"):
+        optimizer_config("rmsprop")
+
+
+def test_the_configured_optimiser_is_built_over_the_trainable_parameters(world, decoder_dir, tiny_encoder, tmp_path):
+    adamw = {"_target_": "torch.optim.AdamW", "_partial_": True, "lr": 0.02, "weight_decay": 0.05}
+    model = EncoderModule(str(decoder_dir), tiny_encoder, ES, optimizer=adamw)
+    assert model.hparams.optimizer == adamw and model.hparams.lr is None  # what a checkpoint rebuilds
+    trainer = _trainer(tmp_path, limit_train_batches=1, limit_val_batches=0)
+    trainer.fit(model, datamodule=_datamodule(world, decoder_dir))
+    optimiser = trainer.optimizers[0]
+    assert isinstance(optimiser, torch.optim.AdamW) and optimiser.defaults["weight_decay"] == 0.05
 
 
 def test_training_moves_the_encoder_and_never_the_decoder(world, decoder_dir, tiny_encoder, tmp_path):

@@ -129,3 +129,12 @@ def test_a_damaged_finished_decoder_is_rewritten_not_trusted(tmp_path, caplog):
         assert ensure_decoder(cfg, lambda d: (calls.append(d), _fake_train(d))) == folder
     assert calls == [folder] and f"stage-1 decoder {decoder} is damaged" in caplog.text
     assert ensure_decoder(cfg, lambda d: calls.append(d)) == folder and len(calls) == 1  # intact again: reused
+
+
+def test_naming_the_default_module_class_keeps_the_decoder_a_custom_one_does_not(tmp_path):
+    """stage1.module._target_ came after decoders were trained: at its default it leaves the identity as it was."""
+    before = decoder_dir_for(_cfg(tmp_path, stage1={"epochs": 3, "module": {"lr_net": 1e-3}}))
+    named = {"epochs": 3, "module": {"_target_": "ushape.decoder.autodecoder.AutoDecoderModule", "lr_net": 1e-3}}
+    assert decoder_dir_for(_cfg(tmp_path, stage1=named)) == before
+    custom = {"epochs": 3, "module": {"_target_": "my_lab.MyAutoDecoder", "lr_net": 1e-3}}
+    assert decoder_dir_for(_cfg(tmp_path, stage1=custom)) != before

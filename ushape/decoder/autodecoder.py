@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from functools import partial
-from typing import Any
+from typing import Any, Mapping
 
 import lightning as L
 import numpy as np
@@ -47,6 +47,10 @@ def deepsdf_lr_factor(epoch: int, step_epochs: int, gamma: float) -> float:
     return gamma ** ((epoch + 1) // step_epochs)
 
 
+# The optimiser (a Hydra `_partial_` config) that both parameter groups share: DeepSDF's Adam.
+DEEPSDF_OPTIMIZER = {"_target_": "torch.optim.Adam", "_partial_": True}
+
+
 class AutoDecoderModule(L.LightningModule):
     """Decoder f(x, z) plus an embedding of codes, trained on clamped L1 with DeepSDF's code prior.
 
@@ -70,6 +74,7 @@ class AutoDecoderModule(L.LightningModule):
         lr_codes: float = 1e-3,
         lr_step_epochs: int = 500,
         lr_gamma: float = 0.5,
+        optimizer: Mapping[str, Any] = DEEPSDF_OPTIMIZER,
         bf16: bool = False,
         val_every_n_epochs: int = 50,
         val_mesh_resolution: int = 64,
@@ -81,6 +86,9 @@ class AutoDecoderModule(L.LightningModule):
         if num_shapes < 1:
             raise ValueError(f"num_shapes must be >= 1, got {num_shapes}")
         self.decoder_config = resolve_decoder_config(decoder, latent_size)
+        if OmegaConf.is_config(optimizer):
+            optimizer = OmegaConf.to_container(optimizer, resolve=True)
+        optimizer = {**optimizer, "_partial_": True}  # rebound before save_hyperparameters reads it
         self.save_hyperparameters()  # the decoder *config* included, so a checkpoint rebuilds the module
         self.decoder = instantiate(self.decoder_config)
         self.codes = nn.Embedding(num_shapes, latent_size, max_norm=code_max_norm)
@@ -116,7 +124,8 @@ class AutoDecoderModule(L.LightningModule):
 
     def configure_optimizers(self) -> dict[str, Any]:
         hp = self.hparams
-        optimiser = torch.optim.Adam([
+        # DeepSDF's two parameter groups, each with its own lr, in the configured optimiser (Adam).
+        optimiser = instantiate(hp.optimizer)([
             {"params": self.decoder.parameters(), "lr": hp.lr_net},
             {"params": self.codes.parameters(), "lr": hp.lr_codes},
         ])

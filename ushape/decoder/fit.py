@@ -16,6 +16,7 @@ from lightning.pytorch.callbacks import Callback, ModelCheckpoint
 from lightning.pytorch.loggers import Logger, TensorBoardLogger
 
 from ushape import atomic
+from ushape.builders import build, plain
 from ushape.checkpoints import resume_point
 from ushape.data.sdf_dataset import SDFSamplesDataset
 from ushape.decoder.artifacts import (
@@ -110,12 +111,13 @@ class TrainingClock(Callback):
 
 
 def build_module(decoder: Mapping[str, Any], module: Mapping[str, Any] | None, num_shapes: int) -> AutoDecoderModule:
-    """The auto-decoder for `num_shapes` training shapes; a configured num_shapes must agree."""
-    kwargs = dict(module or {})
+    """The auto-decoder (module's `_target_`, else AutoDecoderModule) for `num_shapes` training shapes;
+    a configured num_shapes must agree."""
+    kwargs = dict(plain(module) or {})
     configured = kwargs.pop("num_shapes", None)
     if configured is not None and configured != num_shapes:
         raise ValueError(f"module.num_shapes={configured} but the train split has {num_shapes} shapes; drop the key")
-    return AutoDecoderModule(decoder=dict(decoder), num_shapes=num_shapes, **kwargs)
+    return build(kwargs, AutoDecoderModule, decoder=dict(plain(decoder)), num_shapes=num_shapes)
 
 
 def build_trainer(
@@ -126,8 +128,9 @@ def build_trainer(
     logger: Logger | bool | None,
     callbacks: Sequence[Callback],
 ) -> L.Trainer:
-    """Trainer that checkpoints into out_dir/checkpoints (last.ckpt resumes) and validates every
-    `model.hparams.val_every_n_epochs`; keys in `trainer` override these defaults."""
+    """Trainer (`trainer`'s `_target_`, else L.Trainer) that checkpoints into out_dir/checkpoints
+    (last.ckpt resumes) and validates every `model.hparams.val_every_n_epochs`; keys in `trainer`
+    override these defaults."""
     # Saved at train-epoch end: Lightning otherwise ties saving to validation epochs when
     # check_val_every_n_epoch > 1, and a long run would have nothing to resume from.
     checkpoint = ModelCheckpoint(
@@ -144,9 +147,9 @@ def build_trainer(
         "check_val_every_n_epoch": model.hparams.val_every_n_epochs,
         # An untrained decoder has no surface to validate; the first real validation says more.
         "num_sanity_val_steps": 0,
-        **dict(trainer or {}),
+        **dict(plain(trainer) or {}),
     }
-    return L.Trainer(logger=logger, callbacks=[checkpoint, *callbacks], **kwargs)
+    return build(kwargs, L.Trainer, logger=logger, callbacks=[checkpoint, *callbacks])
 
 
 def reconstruct_split(

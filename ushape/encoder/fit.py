@@ -7,12 +7,12 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import lightning as L
-from lightning.pytorch.callbacks import Callback, LearningRateMonitor, ModelCheckpoint
+from lightning.pytorch.callbacks import Callback, ModelCheckpoint
 from lightning.pytorch.loggers import Logger, TensorBoardLogger
 from lightning.pytorch.plugins.io import TorchCheckpointIO
-from omegaconf import OmegaConf
 
 from ushape import atomic
+from ushape.builders import build, plain
 from ushape.checkpoints import resume_point
 from ushape.encoder.datamodule import EncoderDataModule
 from ushape.encoder.feature_cache import FeatureDataModule
@@ -28,12 +28,6 @@ class AtomicCheckpointIO(TorchCheckpointIO):
 
     def save_checkpoint(self, checkpoint: dict, path, storage_options=None) -> None:
         atomic.torch_save(checkpoint, path)
-
-
-def _plain(config: Mapping[str, Any] | None) -> dict[str, Any]:
-    if config is None:
-        return {}
-    return OmegaConf.to_container(config, resolve=True) if OmegaConf.is_config(config) else dict(config)
 
 
 def cached_feature_data(images: EncoderDataModule, model: EncoderModule, train_passes: int) -> FeatureDataModule:
@@ -60,7 +54,8 @@ def fit_encoder(
     callbacks: Sequence[Callback] | None = None,
     monitor: str = "val/loss",
 ) -> Path:
-    """Fit EncoderModule(**module) on EncoderDataModule(**data) with L.Trainer(**trainer).
+    """Fit the module config (`_target_`, else EncoderModule's kwargs) on EncoderDataModule(**data) with the
+    trainer config (`_target_`, else L.Trainer's kwargs) and `callbacks` beside the checkpointing.
 
     data may also hold cached_features (train the head on cached frozen-backbone features) and
     train_passes (views encoded per training view: one clean, the rest augmented).
@@ -69,10 +64,10 @@ def fit_encoder(
     """
     out_dir = Path(out_dir)
     ckpt_dir = out_dir / CHECKPOINT_DIR
-    data = _plain(data)
+    data = dict(plain(data) or {})
     cached, train_passes = data.pop("cached_features", False), data.pop("train_passes", 1)
     datamodule = EncoderDataModule(world_root=str(world_root), decoder_dir=str(decoder_dir), **data)
-    model = EncoderModule(decoder_path=str(decoder_dir), encoder=_plain(encoder), loss=_plain(loss), **_plain(module))
+    model = build(module, EncoderModule, decoder_path=str(decoder_dir), encoder=plain(encoder), loss=plain(loss))
     if cached:
         datamodule = cached_feature_data(datamodule, model, train_passes)
     checkpoint = ModelCheckpoint(dirpath=ckpt_dir, filename=BEST_NAME, monitor=monitor, mode="min")
@@ -83,13 +78,8 @@ def fit_encoder(
                            enable_version_counter=False)
     if logger is None:
         logger = TensorBoardLogger(save_dir=str(out_dir), name="tensorboard")
-    run = L.Trainer(
-        **_plain(trainer),
-        default_root_dir=str(out_dir),
-        logger=logger,
-        callbacks=[checkpoint, last, *([LearningRateMonitor("step")] if logger is not False else []), *(callbacks or [])],
-        plugins=[AtomicCheckpointIO()],
-    )
+    run = build(trainer, L.Trainer, default_root_dir=str(out_dir), logger=logger,
+                callbacks=[checkpoint, last, *(callbacks or [])], plugins=[AtomicCheckpointIO()])
     resume = resume_point(ckpt_dir, LAST_FILE)
     if resume is not None:
         log.info("resuming stage-2 training from %s", resume)

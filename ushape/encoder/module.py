@@ -2,7 +2,8 @@
 
 The paper: ResNet-50 from ImageNet, lr 0.1, batch 64, polynomial lr decay, 50 epochs. lr 0.1 is
 an SGD-with-momentum learning rate (Adam diverges at that size), so SGD with momentum 0.9 is the
-default; `optimizer="adam"` is there for experiments. The poly schedule decays every step:
+default. The optimiser is a Hydra `_partial_` config (conf/optimizer/), built over the trainable
+parameters in `configure_optimizers`. The poly schedule decays every step:
 lr_k = lr * (1 - k / K) ** poly_power over the K steps of `max_epochs` epochs.
 """
 
@@ -44,7 +45,32 @@ def loss_config(loss: LossFn | Mapping[str, Any]) -> dict[str, Any]:
 
 
 HEAD_INITS = ("fixed", "prior")
-OPTIMIZERS = ("sgd", "adam", "adamw")
+PAPER_OPTIMIZER = {"_target_": "torch.optim.SGD", "_partial_": True, "lr": 0.1, "momentum": 0.9, "weight_decay": 1e-4}
+# Checkpoints written before optimisers were configs name one of these (with lr, momentum, weight_decay).
+NAMED_OPTIMIZERS = {"sgd": "torch.optim.SGD", "adam": "torch.optim.Adam", "adamw": "torch.optim.AdamW"}
+
+
+def optimizer_config(optimizer: Mapping[str, Any] | str, lr: float | None = None, momentum: float | None = None,
+                     weight_decay: float | None = None) -> dict[str, Any]:
+    """The optimiser as a `_partial_` config; lr, momentum and weight_decay, where given, override its values.
+
+    A name (sgd, adam, adamw) is what checkpoints before configured optimisers hold: it becomes that
+    class with their defaults (lr 0.1, weight decay 1e-4, SGD's momentum 0.9).
+    """
+    if OmegaConf.is_config(optimizer):
+        optimizer = OmegaConf.to_container(optimizer, resolve=True)
+    if isinstance(optimizer, str):
+        if optimizer not in NAMED_OPTIMIZERS:
+            raise ValueError(f"optimizer must be a `_partial_` config or one of {sorted(NAMED_OPTIMIZERS)}, got {optimizer!r}")
+        config = {"_target_": NAMED_OPTIMIZERS[optimizer], "_partial_": True, "lr": 0.1, "weight_decay": 1e-4}
+        if optimizer == "sgd":
+            config["momentum"] = 0.9
+    elif isinstance(optimizer, Mapping) and "_target_" in optimizer:
+        config = {**optimizer, "_partial_": True}
+    else:
+        raise ValueError(f"optimizer needs a `_target_` (e.g. torch.optim.SGD), got {optimizer!r}")
+    overrides = {"lr": lr, "momentum": momentum, "weight_decay": weight_decay}
+    return {**config, **{k: v for k, v in overrides.items() if v is not None}}
 
 
 def code_prior(decoder_path: str | Path) -> tuple[Tensor, Tensor]:
@@ -74,10 +100,10 @@ class EncoderModule(L.LightningModule):
         decoder_path: str,
         encoder: Mapping[str, Any],
         loss: LossFn | Mapping[str, Any],
-        lr: float = 0.1,
-        weight_decay: float = 1e-4,
-        momentum: float = 0.9,
-        optimizer: str = "sgd",
+        optimizer: Mapping[str, Any] | str = PAPER_OPTIMIZER,
+        lr: float | None = None,
+        momentum: float | None = None,
+        weight_decay: float | None = None,
         poly_power: float = 0.9,
         max_epochs: int | None = None,
         bf16: bool = False,
@@ -89,14 +115,14 @@ class EncoderModule(L.LightningModule):
         head_init: str = "fixed",
     ) -> None:
         super().__init__()
-        if optimizer not in OPTIMIZERS:
-            raise ValueError(f"optimizer must be one of {OPTIMIZERS}, got {optimizer!r}")
         if head_init not in HEAD_INITS:
             raise ValueError(f"head_init must be one of {HEAD_INITS}, got {head_init!r}")
         if OmegaConf.is_config(encoder):
             encoder = OmegaConf.to_container(encoder, resolve=True)
         # Rebound before save_hyperparameters, which reads the locals: plain dicts, loadable later.
         encoder, loss = dict(encoder), loss_config(loss)
+        optimizer = optimizer_config(optimizer, lr, momentum, weight_decay)
+        lr = momentum = weight_decay = None  # folded into `optimizer`
         self.save_hyperparameters()
         self.loss_fn = instantiate(loss)
         self._loss_takes_generator = "generator" in inspect.signature(self.loss_fn).parameters
@@ -221,10 +247,7 @@ class EncoderModule(L.LightningModule):
     def configure_optimizers(self):
         hp = self.hparams
         params = [p for p in self.encoder.parameters() if p.requires_grad]  # a frozen backbone stays out
-        if hp.optimizer == "sgd":
-            opt = torch.optim.SGD(params, lr=hp.lr, momentum=hp.momentum, weight_decay=hp.weight_decay)
-        else:  # adamw: decoupled weight decay, which regularises a head on frozen features without slowing Adam
-            opt = (torch.optim.AdamW if hp.optimizer == "adamw" else torch.optim.Adam)(params, lr=hp.lr, weight_decay=hp.weight_decay)
+        opt = instantiate(hp.optimizer)(params)
         total = self._total_steps()
         schedule = torch.optim.lr_scheduler.LambdaLR(opt, lambda k: max(0.0, 1.0 - k / total) ** hp.poly_power)
         return {"optimizer": opt, "lr_scheduler": {"scheduler": schedule, "interval": "step"}}

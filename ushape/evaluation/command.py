@@ -10,6 +10,7 @@ from pathlib import Path
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from ushape.builders import build
 from ushape.evaluation.report import write_results
 from ushape.evaluation.runner import PROTOCOLS, Settings, evaluate_runs
 from ushape.evaluation.sources import resolve_runs
@@ -95,8 +96,7 @@ def _evaluate(cfg: DictConfig) -> float | None:
         markdown = gather(cfg.gather)
         print(markdown.read_text())
         return None
-    settings = Settings(**{**OmegaConf.to_container(cfg.settings, resolve=True),
-                           "protocols": protocols_for(cfg.protocols, _multirun())})
+    settings = build(cfg.protocol, Settings, protocols=protocols_for(cfg.protocols, _multirun()))
     given = cfg.get("runs") or cfg.get("sweep")
     runs = resolve_runs(cfg.get("runs"), cfg.get("sweep"), "." if given else cfg.paths.root_dir)
     out_dir = Path(cfg.out_dir) if cfg.get("out_dir") else default_out_dir(runs)

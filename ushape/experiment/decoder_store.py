@@ -26,6 +26,12 @@ log = logging.getLogger(__name__)
 # The synthetic world is fully determined by its generating config, wherever it is cached; a real
 # dataset's root *is* its content (3 sample chairs vs all of ShapeNet), so it stays in the identity.
 _SYNTHETIC_TARGET = "ushape.data.world.SyntheticWorld"
+# Keys added to the stage-1 config after decoders were first trained, at the value every earlier
+# decoder was trained with: left out of the identity there, so those decoders are still found.
+_IMPLIED_STAGE1 = {
+    ("module", "_target_"): "ushape.decoder.autodecoder.AutoDecoderModule",
+    ("module", "optimizer"): {"_target_": "torch.optim.Adam", "_partial_": True},
+}
 
 
 def decoder_identity(cfg: DictConfig, legacy: bool = False) -> dict[str, Any]:
@@ -42,6 +48,9 @@ def decoder_identity(cfg: DictConfig, legacy: bool = False) -> dict[str, Any]:
     # Left out as the trainer's precision always was, so decoders trained before stage1.precision
     # existed (all fp32 on CPU) are still found.
     stage1.pop("precision", None)
+    for (section, key), value in _IMPLIED_STAGE1.items():
+        if (stage1.get(section) or {}).get(key) == value:
+            stage1[section].pop(key)
     if data.get("_target_") == _SYNTHETIC_TARGET:
         data.pop("root", None)
     elif data.get("root") is not None:

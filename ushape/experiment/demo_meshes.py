@@ -1,8 +1,8 @@
 """After stage 2, a held-out shape reconstructed with its uncertainty: a run ends with meshes to look at.
 
 For each of the first `shapes` validation shapes, `reconstruct` (the same pipeline as reconstruct.py)
-runs once on its first view and once on all its views fused (Bayesian), both coloured on the
-single view's scale so the two can be compared by eye:
+runs once on its first view and once on all its views fused (the `fusion` group's rule, Bayesian by
+default), both coloured on the single view's scale so the two can be compared by eye:
 
     <run>/meshes/<shape id>_1view/     mesh.ply, mesh.glb, overview.png, depth_00.png, summary.json
     <run>/meshes/<shape id>_<N>views/
@@ -13,21 +13,25 @@ from __future__ import annotations
 import dataclasses
 import logging
 from pathlib import Path
+from typing import Callable
+
+from torch import Tensor
 
 from ushape import atomic
 from ushape.data.layout import WorldIndex
 from ushape.encoder.datamodule import view_files
-from ushape.fusion import BayesianFusion
+from ushape.fusion import BayesianFusion, FusedCode
 from ushape.mesh.extraction import EmptySurfaceError
 from ushape.reconstruction.pipeline import ReconstructionSettings, reconstruct
 from ushape.reconstruction.predictor import load_predictor
 
 log = logging.getLogger(__name__)
 EMPTY_NOTE = "empty_surface.txt"
+FusionRule = Callable[[Tensor, Tensor], FusedCode]  # (mu [V, D], var [V, D]) -> fused Gaussian
 
 
 def write_demo_meshes(checkpoint: str | Path, world: WorldIndex, out_dir: str | Path, shapes: int = 1,
-                      resolution: int = 96, split: str = "val") -> Path | None:
+                      resolution: int = 96, split: str = "val", fusion: FusionRule | None = None) -> Path | None:
     """Reconstruct `shapes` held-out shapes from 1 and from all views into out_dir; None if shapes = 0.
 
     A code with no surface (an undertrained encoder) leaves an `empty_surface.txt` saying so, not a crash.
@@ -43,7 +47,7 @@ def write_demo_meshes(checkpoint: str | Path, world: WorldIndex, out_dir: str | 
         for inputs in (views[:1], views):
             folder = out_dir / f"{shape_id}_{len(inputs)}view{'s' if len(inputs) > 1 else ''}"
             try:
-                summary = reconstruct(predictor, inputs, BayesianFusion(), folder, settings)
+                summary = reconstruct(predictor, inputs, fusion or BayesianFusion(), folder, settings)
             except EmptySurfaceError as err:
                 log.warning("no mesh for %s from %d view(s): %s", shape_id, len(inputs), err)
                 folder.mkdir(parents=True, exist_ok=True)

@@ -11,9 +11,11 @@ from typing import Any
 
 import lightning as L
 from hydra.utils import instantiate
+from lightning.pytorch.callbacks import Callback, LearningRateMonitor
 from omegaconf import DictConfig, OmegaConf
 
 from ushape import atomic
+from ushape.builders import build_all
 from ushape.data.layout import WorldIndex
 from ushape.decoder.basis import ensure_basis
 from ushape.decoder.fit import fit_decoder
@@ -92,7 +94,8 @@ def _train(cfg: DictConfig, out_dir: Path, main: bool) -> float | None:
         if not main:
             return None
         summary["encoder_checkpoint"] = str(checkpoint)
-        meshes = write_demo_meshes(checkpoint, world, out_dir / "meshes", **_plain(cfg.stage2.get("demo_meshes") or {}))
+        meshes = write_demo_meshes(checkpoint, world, out_dir / "meshes", **_plain(cfg.stage2.get("demo_meshes") or {}),
+                                   fusion=instantiate(cfg.fusion) if cfg.get("fusion") else None)
         if meshes is not None:
             summary["meshes"] = str(meshes)
         summary["tensorboard"] = str(out_dir / "tensorboard")
@@ -119,6 +122,7 @@ def build_world(cfg: DictConfig) -> WorldIndex:
 def train_decoder(cfg: DictConfig, world: WorldIndex, folder: Path) -> None:
     s1 = cfg.stage1
     fit_decoder(
+        callbacks=build_callbacks(cfg, logging=True),
         world_root=world.root,
         out_dir=folder,
         decoder=_plain(cfg.decoder),
@@ -135,6 +139,7 @@ def train_encoder(cfg: DictConfig, world: WorldIndex, decoder_dir: Path, out_dir
     s2 = cfg.stage2
     logger = instantiate(cfg.logger) if cfg.get("logger") else False
     return fit_encoder(
+        callbacks=build_callbacks(cfg, logging=logger is not False),
         world_root=world.root,
         decoder_dir=decoder_dir,
         out_dir=out_dir,
@@ -145,6 +150,12 @@ def train_encoder(cfg: DictConfig, world: WorldIndex, decoder_dir: Path, out_dir
         trainer=stage_trainer(cfg.trainer, s2),
         logger=logger,
     )
+
+
+def build_callbacks(cfg: DictConfig, logging: bool) -> list[Callback]:
+    """The `callbacks` group's callbacks; without a logger, not those that only log (LearningRateMonitor)."""
+    callbacks = build_all(cfg.get("callbacks"))
+    return [c for c in callbacks if logging or not isinstance(c, LearningRateMonitor)]
 
 
 def stage_trainer(trainer: DictConfig, stage: DictConfig) -> dict[str, Any]:
