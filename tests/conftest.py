@@ -11,7 +11,7 @@ import lightning as L  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 import torch  # noqa: E402
-from tiny_render_world import write_decoder_folder, write_render_world  # noqa: E402
+from tiny_render_world import tiny_encoder_config, write_decoder_folder, write_render_world  # noqa: E402
 
 from ushape import atomic  # noqa: E402
 from ushape.data.cameras import look_at  # noqa: E402
@@ -40,7 +40,7 @@ def make_tiny_run(base) -> dict:
     K, w2c = zip(*(look_at(40.0 * v, 25.0, 2.0, 49.13, TINY_RENDER_SIZE) for v in range(TINY_VIEWS)))
     write_render_world(world, TINY_SPLITS, TINY_VIEWS, np.random.default_rng(0), TINY_RENDER_SIZE, np.stack(K), np.stack(w2c))
     write_decoder_folder(decoder_dir, TINY_SPLITS, TINY_LATENT)
-    encoder = {"backbone": {"_target_": "ushape.encoder.backbones.resnet18", "pretrained": False}, "latent_size": TINY_LATENT}
+    encoder = tiny_encoder_config(TINY_LATENT)
     loss = {"_target_": "ushape.encoder.losses.gaussian_nll"}
     model = EncoderModule(str(decoder_dir), encoder, loss, lr=1e-3)
     data = EncoderDataModule(world, decoder_dir, image_size=TINY_IMAGE_SIZE, batch_size=4)

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from PIL import Image
+from fake_world import new_world, write_mesh, write_sdf, write_views
+from tiny_render_world import tiny_encoder_config
 
 from ushape.data.cameras import look_at
 from ushape.data.layout import WorldIndex
@@ -65,37 +66,30 @@ class FakePredictor:
         return mu, var
 
 
-def _disc(path, radius, rng):
+def _disc(radius, rng):
     yy, xx = (np.mgrid[:IMAGE, :IMAGE] + 0.5) / IMAGE - 0.5
     inside = np.hypot(yy, xx) < radius / 2
     rgb = rng.integers(0, 200, (IMAGE, IMAGE, 3))
-    Image.fromarray(np.concatenate([rgb, 255 * inside[..., None]], -1).astype(np.uint8), "RGBA").save(path)
+    return np.concatenate([rgb, 255 * inside[..., None]], -1)
 
 
 def build_sphere_world(root):
     rng = np.random.default_rng(0)
-    for folder in ("splits", "meshes", "sdf", "renders", "shapes"):
-        (root / folder).mkdir(parents=True, exist_ok=True)
-    (root / "config.json").write_text(json.dumps({"category": "spheres", "n_views": N_VIEWS, "image_size": IMAGE}))
     # The same shapes in every split, so a real encoder can be fitted on this world in a test.
-    for split, ids in (("train", list(RADII)), ("val", list(RADII)), ("test", list(RADII))):
-        (root / "splits" / f"{split}.json").write_text(json.dumps(ids))
+    world = new_world(root, {split: list(RADII) for split in ("train", "val", "test")},
+                      {"category": "spheres", "n_views": N_VIEWS, "image_size": IMAGE})
     for shape_id, radius in RADII.items():
         mesh = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
         mesh.apply_scale([radius, B, B])
-        mesh.export(root / "meshes" / f"{shape_id}.ply")
+        write_mesh(world, shape_id, mesh)
         points = rng.normal(size=(600, 3))
         points = points / np.linalg.norm(points, axis=1, keepdims=True) * (1 + rng.normal(0, 0.05, (600, 1)))
         points = points * np.array([radius, B, B])
         sdf = ellipsoid_sdf(torch.from_numpy(points), torch.tensor(radius, dtype=torch.float64)).numpy()
-        samples = np.concatenate([points, sdf[:, None]], 1).astype(np.float32)
-        np.savez(root / "sdf" / f"{shape_id}.npz", pos=samples[sdf > 0], neg=samples[sdf <= 0])
-        (root / "renders" / shape_id).mkdir(exist_ok=True)
-        for view in range(N_VIEWS):
-            _disc(root / "renders" / shape_id / f"{view:02d}.png", radius, rng)
+        write_sdf(world, shape_id, np.concatenate([points, sdf[:, None]], 1))
         cameras = [look_at(360 * v / N_VIEWS, 20, 3.0, 40, IMAGE) for v in range(N_VIEWS)]
-        np.savez(root / "renders" / shape_id / "views.npz", K=np.stack([c[0] for c in cameras]),
-                 world_to_cam=np.stack([c[1] for c in cameras]))
+        write_views(world, shape_id, [_disc(radius, rng) for _ in range(N_VIEWS)],
+                    K=np.stack([c[0] for c in cameras]), world_to_cam=np.stack([c[1] for c in cameras]))
     return WorldIndex.load(root)
 
 
@@ -160,7 +154,7 @@ def fit_sphere_run(world, tmp_path):
     for split in ("train", "val", "test"):
         save_codes(decoder_dir / codes_file(split), table)
     run_dir = tmp_path / "run"
-    encoder = {"backbone": {"_target_": "ushape.encoder.backbones.resnet18", "pretrained": False}, "latent_size": 3}
+    encoder = tiny_encoder_config(3)
     checkpoint = fit_encoder(world.root, decoder_dir, run_dir, encoder=encoder,
                              loss={"_target_": "ushape.encoder.losses.gaussian_nll"},
                              module={"lr": 0.01, "val_samples": 16}, data={"image_size": 16, "batch_size": 8},

@@ -4,14 +4,18 @@ A uniquely named module (several conftests share the name `conftest`): import it
 Every render is a random-coloured RGBA image whose alpha is a centred disc.
 """
 
-import json
 
 import numpy as np
 import torch
-from PIL import Image
+from fake_world import new_world, write_views
 
 from ushape.decoder.artifacts import CodeTable, codes_file, save_codes, save_decoder
 from ushape.decoder.network import DeepSDFDecoder
+
+
+def tiny_encoder_config(latent: int) -> dict:
+    """An ImageEncoder config small enough for CPU tests: a random-init ResNet-18 and a Gaussian head."""
+    return {"backbone": {"_target_": "ushape.encoder.backbones.resnet18", "pretrained": False}, "latent_size": latent}
 
 
 def tiny_decoder_config(latent: int) -> dict:
@@ -19,26 +23,18 @@ def tiny_decoder_config(latent: int) -> dict:
             "latent_in": [1], "dropout": 0.0}
 
 
-def write_rgba(path, rng, size):
-    """A random-coloured RGBA image whose alpha is a centred disc."""
+def random_disc(rng, size):
+    """A random-coloured RGBA image [size, size, 4] whose alpha is a centred disc."""
     yy, xx = np.mgrid[:size, :size]
     disc = (yy - size / 2) ** 2 + (xx - size / 2) ** 2 < (size / 3) ** 2
-    rgba = np.concatenate([rng.integers(0, 256, (size, size, 3)), 255 * disc[..., None]], axis=-1)
-    Image.fromarray(rgba.astype(np.uint8), "RGBA").save(path)
+    return np.concatenate([rng.integers(0, 256, (size, size, 3)), 255 * disc[..., None]], axis=-1)
 
 
 def write_render_world(root, split_sizes: dict, n_views: int, rng, size: int, K: np.ndarray, world_to_cam: np.ndarray):
-    """root/splits/<split>.json with ids <split>_<i>, and per shape n_views renders plus views.npz (K, world_to_cam)."""
-    (root / "splits").mkdir(parents=True)
-    for split, n in split_sizes.items():
-        ids = [f"{split}_{i}" for i in range(n)]
-        (root / "splits" / f"{split}.json").write_text(json.dumps(ids))
-        for shape_id in ids:
-            folder = root / "renders" / shape_id
-            folder.mkdir(parents=True)
-            for v in range(n_views):
-                write_rgba(folder / f"{v:02d}.png", rng, size)
-            np.savez(folder / "views.npz", K=K, world_to_cam=world_to_cam)
+    """Splits with ids <split>_<i>, and per shape n_views renders plus views.npz (K, world_to_cam)."""
+    world = new_world(root, {split: [f"{split}_{i}" for i in range(n)] for split, n in split_sizes.items()})
+    for shape_id in world.shape_ids():
+        write_views(world, shape_id, [random_disc(rng, size) for _ in range(n_views)], K=K, world_to_cam=world_to_cam)
 
 
 def write_decoder_folder(folder, split_sizes: dict, latent: int):

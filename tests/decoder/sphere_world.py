@@ -5,8 +5,7 @@ import json
 import numpy as np
 import pytest
 import trimesh
-
-from ushape import atomic
+from fake_world import new_world, write_mesh, write_sdf
 
 SPLITS = {
     "train": {"r30": 0.3, "r40": 0.4, "r50": 0.5, "r60": 0.6},
@@ -28,13 +27,11 @@ def sphere_samples(radius: float, n: int, rng: np.random.Generator) -> tuple[np.
 
 def write_sphere_world(root, n_samples: int = 8000, seed: int = 0):
     rng = np.random.default_rng(seed)
-    for split, shapes in SPLITS.items():
-        atomic.write_json(root / "splits" / f"{split}.json", list(shapes))
+    world = new_world(root, {split: list(shapes) for split, shapes in SPLITS.items()})
+    for shapes in SPLITS.values():
         for shape_id, radius in shapes.items():
-            pos, neg = sphere_samples(radius, n_samples, rng)
-            atomic.save_npz(root / "sdf" / f"{shape_id}.npz", pos=pos, neg=neg)
-            mesh = trimesh.creation.icosphere(subdivisions=3, radius=radius)
-            atomic.write_bytes(root / "meshes" / f"{shape_id}.ply", mesh.export(file_type="ply"))
+            write_sdf(world, shape_id, np.concatenate(sphere_samples(radius, n_samples, rng)))
+            write_mesh(world, shape_id, trimesh.creation.icosphere(subdivisions=3, radius=radius))
     return root
 
 

@@ -5,7 +5,8 @@ import pytest
 import torch
 
 from ushape import atomic
-from ushape.data.sdf_dataset import SDFSamplesDataset, read_split
+from ushape.data.layout import read_split
+from ushape.data.sdf_dataset import SDFSamplesDataset
 from ushape.decoder.datamodule import SDFDataModule
 
 

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from tiny_render_world import write_decoder_folder, write_render_world
+from tiny_render_world import tiny_encoder_config, write_decoder_folder, write_render_world
 
 LATENT = 8
 SPLIT_SIZES = {"train": 4, "val": 3, "test": 2}
@@ -28,7 +28,7 @@ def decoder_dir(tmp_path):
 @pytest.fixture
 def tiny_encoder():
     """An ImageEncoder config small enough for CPU tests (random-init ResNet-18)."""
-    return {"backbone": {"_target_": "ushape.encoder.backbones.resnet18", "pretrained": False}, "latent_size": LATENT}
+    return tiny_encoder_config(LATENT)
 
 
 @pytest.fixture

@@ -46,7 +46,7 @@ def test_deterministic_items_repeat_random_transforms(world, decoder_dir):
 
 def test_missing_world_pieces_say_what_to_do(world, decoder_dir, tmp_path):
     codes = load_codes(decoder_dir / "codes_train.pt")
-    with pytest.raises(FileNotFoundError, match="render the world"):
+    with pytest.raises(FileNotFoundError, match=r"splits/train.json is missing(.|\n)*SyntheticWorld"):
         RenderDataset(tmp_path / "nowhere", "train", codes)
     (world / "splits" / "train.json").write_text(json.dumps(["train_0", "ghost"]))
     ghost = CodeTable(["train_0", "ghost"], torch.zeros(2, 8))

@@ -7,12 +7,12 @@ from ushape.data.cameras import R2N2_FOV_DEG, look_at
 from ushape.data.rendering import pixel_rays
 from ushape.decoder.network import DeepSDFDecoder
 from ushape.propagation.decoding import frozen
+from ushape.propagation.linearised import sdf_gradients
 from ushape.propagation.monte_carlo import sample_codes
 from ushape.reconstruction.depth_implicit import (
     depth_sensitivity,
     depth_stats,
     depth_uncertainty_implicit,
-    hit_gradients,
     std_agreement,
 )
 from ushape.reconstruction.sphere_tracing import DepthStats, depth_uncertainty
@@ -121,7 +121,7 @@ def sdf_like_decoder(seed: int) -> tuple[DeepSDFDecoder, torch.Tensor]:
     code, points = 0.1 * torch.randn(64), torch.rand(4096, 3) * 2 - 1
     last = decoder.layers[-1]
     with frozen(decoder):
-        _, grad_x = hit_gradients(decoder, code, points)
+        _, _, grad_x = sdf_gradients(decoder, code, points, with_xyz=True)
         with torch.no_grad():
             scale = grad_x.norm(dim=-1).median()
             last.weight /= scale

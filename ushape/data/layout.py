@@ -110,16 +110,22 @@ class WorldIndex:
         config = _read_json(root / CONFIG_FILE, root)
         if not isinstance(config, dict) or any(k not in config for k in REQUIRED_CONFIG_KEYS):
             raise ValueError(f"{root / CONFIG_FILE} lacks the keys {REQUIRED_CONFIG_KEYS}.{_layout_hint(root)}")
-        splits = {}
-        for split in SPLITS:
-            ids = _read_json(root / SPLITS_DIR / f"{split}.json", root)
-            if not isinstance(ids, list) or not all(isinstance(i, str) for i in ids):
-                raise ValueError(f"{root / SPLITS_DIR / split}.json must be a JSON list of shape ids")
-            splits[split] = ids
+        splits = {split: read_split(root, split) for split in SPLITS}
         missing = [d for d in (MESHES_DIR, SDF_DIR, RENDERS_DIR, SHAPES_DIR) if not (root / d).is_dir()]
         if missing:
             raise FileNotFoundError(f"{root} lacks the folders {missing}.{_layout_hint(root)}")
         return cls(root=root, category=str(config["category"]), splits=splits, config=config)
+
+
+def read_split(root: str | Path, split: str) -> list[str]:
+    """Shape ids of one split of a world (its splits/<split>.json), checked: the one reader of split files."""
+    root = Path(root)
+    path = root / SPLITS_DIR / f"{split}.json"
+    ids = _read_json(path, root)
+    if not isinstance(ids, list) or not all(isinstance(i, str) for i in ids):
+        raise ValueError(f"{path} must hold a JSON list of shape id strings; rebuild the world with "
+                         "SyntheticWorld(...).build()")
+    return ids
 
 
 def _read_json(path: Path, root: Path) -> Any:

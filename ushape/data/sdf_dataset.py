@@ -8,7 +8,6 @@ so an epoch sees a different subset of each shape's ~100k samples.
 
 from __future__ import annotations
 
-import json
 import zipfile
 from pathlib import Path
 
@@ -17,23 +16,9 @@ import torch
 from torch import Tensor
 from torch.utils.data import Dataset
 
-from ushape.data.layout import MESHES_DIR, SDF_DIR, SPLITS_DIR
+from ushape.data.layout import MESHES_DIR, SDF_DIR, read_split
 
 REBUILD_HINT = "rebuild the data with ushape.data.world.SyntheticWorld(...).build()"
-
-
-def read_split(world_root: str | Path, split: str) -> list[str]:
-    """Shape ids of one split of a world (its splits/<split>.json)."""
-    path = Path(world_root) / SPLITS_DIR / f"{split}.json"
-    if not path.is_file():
-        raise FileNotFoundError(f"split file {path} is missing: is {world_root} a built world? {REBUILD_HINT}")
-    try:
-        ids = json.loads(path.read_text())
-    except ValueError as err:
-        raise ValueError(f"split file {path} is not valid JSON ({err}); {REBUILD_HINT}") from err
-    if not isinstance(ids, list) or not all(isinstance(i, str) for i in ids):
-        raise ValueError(f"split file {path} must hold a JSON list of shape id strings; {REBUILD_HINT}")
-    return ids
 
 
 def load_sdf_samples(path: str | Path) -> tuple[Tensor, Tensor]:

@@ -8,7 +8,6 @@ World layout read here (written by the renderer):
 
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 from typing import Callable, Sequence
@@ -20,21 +19,10 @@ from torch.utils.data import DataLoader, Dataset
 
 from ushape import atomic
 from ushape.data.augment import build_transform, load_rgba
-from ushape.data.layout import RENDERS_DIR, SPLITS_DIR
+from ushape.data.layout import RENDERS_DIR, read_split
 from ushape.decoder.artifacts import CodeTable, codes_file, load_codes
 
 log = logging.getLogger(__name__)
-
-
-def read_split(world_root: str | Path, split: str) -> list[str]:
-    """Shape ids of a split from <world_root>/splits/<split>.json."""
-    path = Path(world_root) / SPLITS_DIR / f"{split}.json"
-    if not path.exists():
-        raise FileNotFoundError(f"no split file {path}: render the world first (the data config's world generation)")
-    ids = json.loads(path.read_text())
-    if not isinstance(ids, list) or not all(isinstance(i, str) for i in ids):
-        raise ValueError(f"{path} must hold a JSON list of shape id strings")
-    return ids
 
 
 def view_files(world_root: str | Path, shape_id: str, views: Sequence[int] | None = None) -> list[Path]:

@@ -19,24 +19,41 @@ from ushape.propagation.decoding import (
 )
 
 
+def sdf_gradients(
+    decoder: Decoder,
+    z: Tensor,  # [D]
+    points: Tensor,  # [P, 3]
+    with_xyz: bool = False,
+    bf16: bool = False,
+) -> tuple[Tensor, Tensor, Tensor | None]:
+    """SDF f(x_p, z) [P], ds_p/dz [P, D] and (with_xyz) ds_p/dx [P, 3], in one forward/backward, by autograd.
+
+    Each point gets its own copy of z as a leaf, so the gradient of sum_p s_p w.r.t. that [P, D]
+    leaf holds every point's Jacobian row (a point's SDF depends only on its own copy and its own x).
+    A decoder that ignores the code (or space) has no graph to it: that derivative is 0.
+    Call inside `frozen(decoder)` so no parameter gradients are built. `FoldedDecoder` computes the
+    same for a DeepSDF network without autograd.
+    """
+    z_per_point = z.detach().expand(points.shape[0], z.shape[0]).clone().requires_grad_(True)
+    xyz = points.detach().clone().requires_grad_(with_xyz)
+    leaves = (z_per_point, xyz) if with_xyz else (z_per_point,)
+    with torch.enable_grad():
+        with autocast(bf16, points.device):
+            sdf = decoder(xyz, z_per_point)
+        grads = torch.autograd.grad(sdf.sum(), leaves, allow_unused=True)
+    grads = [torch.zeros_like(leaf) if g is None else g.detach() for g, leaf in zip(grads, leaves)]
+    return sdf.detach(), grads[0], grads[1] if with_xyz else None
+
+
 def latent_jacobian(
     decoder: Decoder,
     z: Tensor,  # [D]
     points: Tensor,  # [P, 3]
     bf16: bool = False,
 ) -> tuple[Tensor, Tensor]:
-    """SDF f(x_p, z) [P] and its gradient w.r.t. the latent code, ds_p/dz [P, D], in one forward/backward.
-
-    Each point gets its own copy of z as a leaf, so the gradient of sum_p s_p w.r.t. that
-    [P, D] leaf holds every point's Jacobian row (a point's SDF depends only on its own copy).
-    Call inside `frozen(decoder)` so no parameter gradients are built.
-    """
-    z_per_point = z.detach().expand(points.shape[0], z.shape[0]).clone().requires_grad_(True)
-    with torch.enable_grad():
-        with autocast(bf16, points.device):
-            sdf = decoder(points, z_per_point)
-        (jacobian,) = torch.autograd.grad(sdf.sum(), z_per_point)
-    return sdf.detach(), jacobian
+    """SDF f(x_p, z) [P] and its gradient w.r.t. the latent code, ds_p/dz [P, D] (see `sdf_gradients`)."""
+    sdf, jacobian, _ = sdf_gradients(decoder, z, points, bf16=bf16)
+    return sdf, jacobian
 
 
 def propagate_linearised(

@@ -31,32 +31,12 @@ from ushape.decoder.folded import fold_code
 from ushape.encoder.latent_metrics import spearman_correlation
 from ushape.mesh.extraction import DEFAULT_CHUNK
 from ushape.propagation.decoding import Decoder, check_code_size, check_latent_gaussian, frozen
+from ushape.propagation.linearised import sdf_gradients
 from ushape.reconstruction.sphere_tracing import DepthStats, camera_rays, codes_sdf, depth_uncertainty, sphere_trace
 
 DEPTH_METHODS = ("implicit", "mc")
 MIN_COSINE = 0.05
 Camera = tuple[np.ndarray, np.ndarray]  # (K [3, 3], world_to_cam [4, 4])
-
-
-def hit_gradients(
-    decoder: Decoder,
-    z: Tensor,  # [D]
-    points: Tensor,  # [P, 3]
-) -> tuple[Tensor, Tensor]:
-    """ds/dz [P, D] and ds/dx [P, 3] of the SDF f(x_p, z) at every point, in one forward/backward.
-
-    Each point gets its own copy of z as a leaf (as `latent_jacobian` does), so one backward of
-    sum_p s_p fills both Jacobians row by row. Call inside `frozen(decoder)`.
-    """
-    z_per_point = z.detach().expand(points.shape[0], z.shape[0]).clone().requires_grad_(True)
-    xyz = points.detach().clone().requires_grad_(True)
-    with torch.enable_grad():
-        sdf = decoder(xyz, z_per_point)
-        grad_z, grad_x = torch.autograd.grad(sdf.sum(), (z_per_point, xyz), allow_unused=True)
-    # A decoder that ignores the code (or space) has no graph to it: its derivative is 0.
-    grad_z = torch.zeros_like(z_per_point) if grad_z is None else grad_z
-    grad_x = torch.zeros_like(xyz) if grad_x is None else grad_x
-    return grad_z.detach(), grad_x.detach()
 
 
 def depth_sensitivity(
@@ -111,7 +91,7 @@ def depth_uncertainty_implicit_views(
             ray = pixels[start : start + chunk]
             points = origins[ray] + t[ray, None] * directions[ray]
             if folded is None:
-                grad_z, grad_x = hit_gradients(decoder, mu, points)
+                _, grad_z, grad_x = sdf_gradients(decoder, mu, points, with_xyz=True)
             else:
                 _, grad_z, grad_x = folded.sdf_and_gradients(points)
             sensitivity = depth_sensitivity(grad_z.float(), grad_x.float(), directions[ray], min_cosine)
