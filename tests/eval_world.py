@@ -20,8 +20,8 @@ from tiny_render_world import tiny_encoder_config
 from ushape.data.cameras import look_at
 from ushape.data.layout import WorldIndex
 from ushape.decoder.artifacts import CodeTable, codes_file, save_codes, save_decoder
+from ushape.evaluation.code_metrics import Reconstructor
 from ushape.evaluation.protocols import EncoderSpec
-from ushape.evaluation.reconstruct import Reconstructor
 from ushape.evaluation.runner import EncoderRun, Settings
 from ushape.evaluation.views import test_views
 

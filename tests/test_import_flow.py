@@ -18,7 +18,7 @@ PACKAGE = ROOT / "ushape"
 # the `ushape` command that runs each of them last.
 FLOW = (
     "torchvision_cpu", "atomic", "workspace", "checkpoints", "builders", "shapes", "data", "mesh", "metrics",
-    "decoder", "encoder", "fusion", "propagation", "recalibration", "reconstruction", "experiment",
+    "decoder", "encoder", "fusion", "propagation", "recalibration", "reconstruction", "training",
     "evaluation", "bench", "cli",
 )
 FLOW_LINE = " -> ".join(FLOW)

@@ -5,7 +5,7 @@ import importlib
 import pytest
 
 from ushape.cli import COMMANDS, main, usage
-from ushape.experiment.interrupts import resume_command
+from ushape.training.interrupts import resume_command
 
 
 def test_every_command_has_a_main():

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from ushape.evaluation import tables
-from ushape.evaluation.reconstruct import grid_inside_fn
+from ushape.evaluation.code_metrics import grid_inside_fn
 from ushape.evaluation.runner import load_results
 from ushape.evaluation.sources import resolve_runs, sweep_runs
 from ushape.mesh.extraction import sdf_grid

@@ -10,8 +10,8 @@ from PIL import Image
 from repo_commands import run_command
 
 from ushape.evaluation.command import run_eval
-from ushape.experiment.validation import ConfigError, check_config
 from ushape.reconstruction.cli import main as reconstruct_main
+from ushape.training.validation import ConfigError, check_config
 
 REPO = Path(__file__).resolve().parents[2]
 

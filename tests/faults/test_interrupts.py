@@ -101,7 +101,7 @@ def test_signals_in_world_build_stage_1_and_stage_2_each_resume(tmp_path):
 
 
 def test_the_resume_command_writes_into_the_same_folders():
-    from ushape.experiment.interrupts import resume_command
+    from ushape.training.interrupts import resume_command
 
     run = Path("/o/outputs/runs/d/t_encoder")
     assert resume_command(["train.py", "loss=nll"], run) == f"python train.py loss=nll hydra.run.dir={run}"

@@ -24,7 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("ushape.bench.cli", "time the paper's computation table on this machine"),
     "gather": ("ushape.evaluation.gather", "one table from an evaluation sweep's folders"),
     "report": ("ushape.decoder.report", "a stage-1 decoder folder's reconstruction report"),
-    "gallery": ("ushape.data.preview", "a picture of the synthetic world's shapes and renders"),
+    "gallery": ("ushape.data.gallery", "a picture of the synthetic world's shapes and renders"),
     "sign-bench": ("ushape.data.mesh_sdf_bench", "measure real-mesh SDF signs against known answers"),
 }
 HYDRA_COMMANDS = ("train", "eval")

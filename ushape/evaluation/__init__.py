@@ -2,7 +2,7 @@
 
     uncertainty           latent / SDF-space ES and NLL, surface split, SDF propagation with clamping
     views                 deterministic corrupted views and cached encodings
-    reconstruct           code -> SDF grid -> mesh and voxels -> metrics, cached by the code's hash
+    code_metrics          code -> SDF grid -> mesh and voxels -> metrics, cached by the code's hash
     protocols             single view, multi view (instances of 10 views), corrupted views -> records
     uncertainty_protocol  Table S1 rows and calibration curves with the equal-variance baseline
     runner, sources       which runs, and every protocol for each of their encoders

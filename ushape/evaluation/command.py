@@ -14,8 +14,8 @@ from ushape.builders import build
 from ushape.evaluation.report import write_results
 from ushape.evaluation.runner import PROTOCOLS, Settings, evaluate_runs
 from ushape.evaluation.sources import resolve_runs
-from ushape.experiment.summary import discard_if_bookkeeping_only
-from ushape.experiment.validation import ConfigError, check_config
+from ushape.training.summary import discard_if_bookkeeping_only
+from ushape.training.validation import ConfigError, check_config
 
 log = logging.getLogger(__name__)
 

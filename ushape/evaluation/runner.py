@@ -28,9 +28,9 @@ from ushape.data.world import open_world
 from ushape.decoder.artifacts import CodeTable, codes_file, load_codes, save_codes
 from ushape.decoder.latent_optim import optimise_codes
 from ushape.evaluation import protocols as P
+from ushape.evaluation.code_metrics import Reconstructor
 from ushape.evaluation.depth_calibration import depth_calibration_rows
 from ushape.evaluation.locality import has_cameras, locality_records, summarise_locality
-from ushape.evaluation.reconstruct import Reconstructor
 from ushape.evaluation.showcase import save_showcase
 from ushape.evaluation.uncertainty_protocol import (
     curves_to_json,

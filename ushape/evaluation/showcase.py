@@ -17,8 +17,8 @@ import trimesh
 from ushape import atomic
 from ushape.data.cameras import look_at
 from ushape.data.rendering import on_white, render_mesh
+from ushape.evaluation.code_metrics import decode_mesh
 from ushape.evaluation.protocols import group_views
-from ushape.evaluation.reconstruct import decode_mesh
 from ushape.fusion.rules import fuse_average, fuse_bayesian
 from ushape.mesh.extraction import EmptySurfaceError
 from ushape.mesh.preview import PREVIEW_VIEW

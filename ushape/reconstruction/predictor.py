@@ -1,6 +1,6 @@
 """A trained stage-2 run as a predictor: images -> one Gaussian over the latent code per view.
 
-Where a run lives (written by `python train.py`, see ushape.experiment.train):
+Where a run lives (written by `python train.py`, see ushape.training.train):
     outputs/runs/<date>/<time>_encoder_<category>_<loss>/
       run.json                 {"stage": "encoder", "encoder_checkpoint": ..., "decoder_dir": ...}
       .hydra/config.yaml       the composed config; stage2.data.image_size is the model's input size

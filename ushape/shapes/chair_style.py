@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ushape.shapes.choices import choose
 from ushape.shapes.palettes import sample_palette
-from ushape.shapes.sampling import choose
 
 CHAIR_BASES = ("four_legs", "pedestal", "sled", "cantilever")
 CHAIR_BACKS = ("solid", "slatted", "open_frame", "none")

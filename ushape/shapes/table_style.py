@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 
 from ushape.shapes.chair_style import LEG_PROFILES
+from ushape.shapes.choices import choose
 from ushape.shapes.palettes import sample_palette
-from ushape.shapes.sampling import choose
 
 TABLE_BASES = ("four_legs", "pedestal", "trestle")
 TABLE_TOPS = ("rectangular", "round", "oval")

@@ -21,11 +21,11 @@ from ushape.decoder.basis import ensure_basis
 from ushape.decoder.fit import fit_decoder
 from ushape.decoder.recode import ensure_codes
 from ushape.encoder.fit import fit_encoder
-from ushape.experiment.decoder_store import decoder_dir_for, ensure_decoder, legacy_decoder_dir_for
-from ushape.experiment.demo_meshes import write_demo_meshes
-from ushape.experiment.interrupts import resume_command, resume_exit, stopping_signal, watch_signals
-from ushape.experiment.summary import discard_if_bookkeeping_only, print_config, print_summary
-from ushape.experiment.validation import ConfigError, check_config
+from ushape.training.decoder_store import decoder_dir_for, ensure_decoder, legacy_decoder_dir_for
+from ushape.training.demo_meshes import write_demo_meshes
+from ushape.training.interrupts import resume_command, resume_exit, stopping_signal, watch_signals
+from ushape.training.summary import discard_if_bookkeeping_only, print_config, print_summary
+from ushape.training.validation import ConfigError, check_config
 from ushape.workspace import CHECKPOINT_DIR, LAST_FILE, RUN_SUMMARY
 
 log = logging.getLogger(__name__)

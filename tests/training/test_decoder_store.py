@@ -10,7 +10,7 @@ from tiny_render_world import tiny_decoder_config
 
 from ushape.decoder.artifacts import DECODER_FILE, DONE_FILE, CodeTable, codes_file, save_codes, save_decoder
 from ushape.decoder.network import DeepSDFDecoder
-from ushape.experiment.decoder_store import decoder_dir_for, ensure_decoder
+from ushape.training.decoder_store import decoder_dir_for, ensure_decoder
 
 
 def _cfg(tmp_path: Path, **over):

@@ -8,9 +8,9 @@ import torch
 from hydra import compose, initialize_config_dir
 from repo_commands import run_command
 
-from ushape.experiment.train import stage_trainer
+from ushape.training.train import stage_trainer
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 # Sizes only: the paper's networks, losses, optimisers and precisions stay as the preset sets them, but for
 # stage 2's lr: SGD at 0.1 on batches of 3 images from a randomly initialised ResNet-50 gave NaN codes within

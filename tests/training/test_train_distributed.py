@@ -13,9 +13,9 @@ from pathlib import Path
 
 import torch
 
-from ushape.experiment.train import is_main_process
+from ushape.training.train import is_main_process
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 N_TRAIN, VIEWS, SHAPES_PER_BATCH, IMAGES_PER_BATCH, EPOCHS = 4, 2, 2, 2, 2
 
 TINY_DDP = [

@@ -5,7 +5,7 @@ import pytest
 from data_toy_shapes import toy_shape_factory
 from PIL import Image
 
-from ushape.data.preview import LABEL_LINES, cells_from_shapes, cells_from_world, compose_gallery, style_label
+from ushape.data.gallery import LABEL_LINES, cells_from_shapes, cells_from_world, compose_gallery, style_label
 from ushape.data.rendering import on_white
 from ushape.data.world import SyntheticWorld
 

@@ -1,1 +1,0 @@
-"""Experiment orchestration: what the entry scripts (train.py, ...) call."""
