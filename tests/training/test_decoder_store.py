@@ -57,7 +57,7 @@ def test_reuse_and_identity(tmp_path):
     assert decoder_dir_for(_cfg(tmp_path, category={"name": "tables"})) != first
     # The synthetic world's cache location does not change it; a real dataset's root does.
     assert decoder_dir_for(_cfg(tmp_path, data={"root": "/elsewhere"})) == first
-    real = {"_target_": "ushape.data.real_world.ShapeNetWorld", "root": "/data/a"}
+    real = {"_target_": "ushape.data.real.shapenet_world.ShapeNetWorld", "root": "/data/a"}
     assert decoder_dir_for(_cfg(tmp_path, data=real)) != decoder_dir_for(_cfg(tmp_path, data={**real, "root": "/data/b"}))
 
 
@@ -138,3 +138,11 @@ def test_naming_the_default_module_class_keeps_the_decoder_a_custom_one_does_not
     assert decoder_dir_for(_cfg(tmp_path, stage1=named)) == before
     custom = {"epochs": 3, "module": {"_target_": "my_lab.MyAutoDecoder", "lr_net": 1e-3}}
     assert decoder_dir_for(_cfg(tmp_path, stage1=custom)) != before
+
+
+def test_a_moved_data_class_keeps_the_decoders_trained_on_it(tmp_path):
+    """ShapeNetWorld moved from ushape.data.real_world to ushape.data.real.shapenet_world."""
+    data = {"root": str(tmp_path / "shapenet"), "category": "chairs"}
+    old = _cfg(tmp_path, data={**data, "_target_": "ushape.data.real_world.ShapeNetWorld"})
+    new = _cfg(tmp_path, data={**data, "_target_": "ushape.data.real.shapenet_world.ShapeNetWorld"})
+    assert decoder_dir_for(new) == decoder_dir_for(old)

@@ -25,7 +25,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "gather": ("ushape.evaluation.gather", "one table from an evaluation sweep's folders"),
     "report": ("ushape.decoder.report", "a stage-1 decoder folder's reconstruction report"),
     "gallery": ("ushape.data.gallery", "a picture of the synthetic world's shapes and renders"),
-    "sign-bench": ("ushape.data.mesh_sdf_bench", "measure real-mesh SDF signs against known answers"),
+    "sign-bench": ("ushape.data.real.mesh_sdf_bench", "measure real-mesh SDF signs against known answers"),
 }
 HYDRA_COMMANDS = ("train", "eval")
 

@@ -14,7 +14,7 @@ Conventions used throughout ushape:
   d (cos el cos az, sin el, +cos el sin az) from the object's centre: R2N2's Blender script
   turns its camera rig by -azimuth about Blender's up axis, so the azimuth grows from +x
   towards +z (clockwise seen from above). Checked against R2N2's real renders of a chair
-  (tests/data_real/test_real_shapenet_rendering.py: silhouette IoU >= 0.95 on every view).
+  (tests/data/real/test_real_shapenet_rendering.py: silhouette IoU >= 0.95 on every view).
 - ShapeNetCore v2 turned every model 90 degrees about y relative to v1 (v1 models face +x,
   v2 models face -z): (x, y, z)_v2 = (z, y, -x)_v1. `frame="v2"` expresses the same camera in
   a v2 model's axes (`FRAME_FROM_V1`), so R2N2's rows frame a v2 mesh as they framed its v1 twin.

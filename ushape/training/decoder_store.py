@@ -26,6 +26,8 @@ log = logging.getLogger(__name__)
 # The synthetic world is fully determined by its generating config, wherever it is cached; a real
 # dataset's root *is* its content (3 sample chairs vs all of ShapeNet), so it stays in the identity.
 _SYNTHETIC_TARGET = "ushape.data.world.SyntheticWorld"
+# Data classes that moved after decoders were trained on them are hashed under their first name.
+_FIRST_TARGET_NAMES = {"ushape.data.real.shapenet_world.ShapeNetWorld": "ushape.data.real_world.ShapeNetWorld"}
 # Keys added to the stage-1 config after decoders were first trained, at the value every earlier
 # decoder was trained with: left out of the identity there, so those decoders are still found.
 _IMPLIED_STAGE1 = {
@@ -51,6 +53,8 @@ def decoder_identity(cfg: DictConfig, legacy: bool = False) -> dict[str, Any]:
     for (section, key), value in _IMPLIED_STAGE1.items():
         if (stage1.get(section) or {}).get(key) == value:
             stage1[section].pop(key)
+    if data.get("_target_") in _FIRST_TARGET_NAMES:
+        data["_target_"] = _FIRST_TARGET_NAMES[data["_target_"]]
     if data.get("_target_") == _SYNTHETIC_TARGET:
         data.pop("root", None)
     elif data.get("root") is not None:

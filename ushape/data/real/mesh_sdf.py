@@ -4,7 +4,7 @@ Real meshes are triangle soups: open, with inner faces, flipped or inconsistent 
 duplicated geometry. So the two halves of the SDF are computed separately:
 
 - Magnitude: exact point-to-triangle distance (libigl's AABB tree).
-- Sign: `ushape.data.mesh_signs`: the generalised winding number of the mesh after its patches
+- Sign: `ushape.data.real.mesh_signs`: the generalised winding number of the mesh after its patches
   are oriented outward, with the ray-escape test deciding only where the winding number is
   between 1/4 and 3/4. Unions of closed parts with open compartments between them, surfaces
   with holes, flipped and non-manifold faces all get the signs a person would give them.
@@ -29,7 +29,7 @@ import igl
 import numpy as np
 import trimesh
 
-from ushape.data.mesh_signs import MeshSigns, SignTally
+from ushape.data.real.mesh_signs import MeshSigns, SignTally
 from ushape.data.sampling import sample_points, split_by_sign
 from ushape.data.shading import DEFAULT_ALBEDO
 
@@ -136,7 +136,7 @@ class MeshSdf:
         return np.sqrt(squared)
 
     def inside(self, points: np.ndarray) -> np.ndarray:
-        """Bool [N]: the point is inside the mesh (see ushape.data.mesh_signs)."""
+        """Bool [N]: the point is inside the mesh (see ushape.data.real.mesh_signs)."""
         return self.signs.inside(points)
 
     def sdf(self, points: np.ndarray) -> np.ndarray:

@@ -4,7 +4,7 @@
                                                 shapes/, skipped.json
 
 Per model: the OBJ is loaded with its material/texture colours, normalised to DeepSDF's unit
-sphere, sampled for SDF with `ushape.data.mesh_sdf` (robust sign for real meshes; shapes/<id>.json
+sphere, sampled for SDF with `ushape.data.real.mesh_sdf` (robust sign for real meshes; shapes/<id>.json
 keeps the sign report as `sdf_signs`, see the README's real-data section), and given
 views: ShapeNetRendering's images and cameras when `renderings_root` is set, otherwise our own
 R2N2-protocol renders. A model that cannot be processed is logged, listed in skipped.json with
@@ -29,11 +29,12 @@ import trimesh
 from PIL import Image
 
 from ushape import atomic
-from ushape.data import integrity, shapenet, shapenet_rendering
+from ushape.data import integrity
 from ushape.data.cameras import format_metadata, parse_metadata, sample_r2n2_views
 from ushape.data.jobs import run_jobs
 from ushape.data.layout import SPLITS, WorldIndex
-from ushape.data.mesh_sdf import MeshProcessingError, load_mesh, normalise_mesh, previous_signs, sample_mesh_sdf
+from ushape.data.real import shapenet, shapenet_rendering
+from ushape.data.real.mesh_sdf import MeshProcessingError, load_mesh, normalise_mesh, previous_signs, sample_mesh_sdf
 from ushape.data.rendering import render_views
 from ushape.data.shape_artifacts import artifact_problems, r2n2_frame
 
@@ -216,7 +217,7 @@ def write_model_views(job: ModelJob, mesh: trimesh.Trimesh) -> None:
         if iou < shapenet_rendering.AGREEMENT_WARNING:
             log.warning("%s: R2N2 images overlap our renders through their cameras by IoU %.2f only (real "
                         "ShapeNet chairs: > 0.99); this %s model's frame may differ from the one R2N2 rendered "
-                        "(see ushape.data.shapenet_rendering)", job.model_id, iou, job.layout)
+                        "(see ushape.data.real.shapenet_rendering)", job.model_id, iou, job.layout)
         extra["r2n2_mask_iou"] = np.float32(iou)
     for view in range(n_views):
         buffer = io.BytesIO()

@@ -7,7 +7,7 @@ import pytest
 import torch
 from PIL import Image
 
-from ushape.data.pix3d import (
+from ushape.data.real.pix3d import (
     Pix3DImages,
     Pix3DWorld,
     crop_resize,

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from ushape.data import shapenet_rendering
 from ushape.data.cameras import camera_centre, format_metadata, metadata_to_cameras
 from ushape.data.layout import WorldIndex
-from ushape.data.mesh_sdf import load_mesh, normalise_mesh
-from ushape.data.real_world import ShapeNetWorld
+from ushape.data.real import shapenet_rendering
+from ushape.data.real.mesh_sdf import load_mesh, normalise_mesh
+from ushape.data.real.shapenet_world import ShapeNetWorld
 from ushape.data.rendering import render_views
 from ushape.data.shape_artifacts import r2n2_frame
 

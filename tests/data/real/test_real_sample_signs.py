@@ -2,7 +2,7 @@
 
 A sample is compared only when it lies at least one voxel from the voxel surface (its voxel
 and all 26 neighbours agree): faces on voxel boundaries and thin parts thickened to a voxel
-make the voxels differ from the mesh nearer than that (see ushape.data.voxel_check).
+make the voxels differ from the mesh nearer than that (see ushape.data.real.voxel_check).
 """
 
 import os
@@ -11,13 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ushape.data.mesh_sdf import MeshSdf, SignReport, load_mesh, normalise_mesh, sample_mesh_sdf
-from ushape.data.pix3d import load_voxels, voxel_to_model
+from ushape.data.real.mesh_sdf import MeshSdf, SignReport, load_mesh, normalise_mesh, sample_mesh_sdf
+from ushape.data.real.pix3d import load_voxels, voxel_to_model
+from ushape.data.real.voxel_check import has_interior, read_solid_binvox, tolerant_truth
 from ushape.data.sampling import sample_points
-from ushape.data.voxel_check import has_interior, read_solid_binvox, tolerant_truth
 
 # As conftest.REAL_SAMPLE (a conftest cannot be imported by name here): parametrizing needs the list at collection.
-REAL_SAMPLE = Path(os.path.dirname(os.path.abspath(__file__))).parents[2] / "shared" / "data" / "real_sample"
+REAL_SAMPLE = Path(os.path.dirname(os.path.abspath(__file__))).parents[3] / "shared" / "data" / "real_sample"
 CHAIRS = "03001627"
 
 

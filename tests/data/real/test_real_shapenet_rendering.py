@@ -10,10 +10,10 @@ import json
 import numpy as np
 import pytest
 
-from ushape.data import shapenet_rendering
 from ushape.data.cameras import FRAME_FROM_V1
-from ushape.data.mesh_sdf import load_mesh, normalise_mesh
-from ushape.data.real_world import ShapeNetWorld
+from ushape.data.real import shapenet_rendering
+from ushape.data.real.mesh_sdf import load_mesh, normalise_mesh
+from ushape.data.real.shapenet_world import ShapeNetWorld
 from ushape.data.rendering import render_views
 
 CHAIRS = "03001627"

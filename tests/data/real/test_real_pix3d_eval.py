@@ -15,11 +15,11 @@ from PIL import Image
 
 from ushape.data.cameras import look_at
 from ushape.data.layout import WorldIndex
-from ushape.data.mesh_sdf import load_mesh, normalise_mesh
-from ushape.data.pix3d import Pix3DEntry, Pix3DWorld, multiview_groups
+from ushape.data.real.mesh_sdf import load_mesh, normalise_mesh
+from ushape.data.real.pix3d import Pix3DEntry, Pix3DWorld, multiview_groups
 from ushape.data.rendering import render_views
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 PHOTO_HW = (48, 64)
 # (category, model, photos, photos flagged occluded): 11 + 10 usable chair photos -> two Pix3D-MV instances.
 PHOTOS = [("chair", "IKEA_IVAR", 11, 0), ("chair", "IKEA_HENRIKSDAL", 10, 1),

@@ -3,7 +3,7 @@
     ushape sign-bench --real-root ../shared/data/real_sample \
         [--baseline old_mesh_sdf.py] [--samples 30000] [--timing-samples 250000] [--json out.json]
 
-`--baseline` names another version of ushape/data/mesh_sdf.py (e.g. `git show <commit>:ushape/data/mesh_sdf.py
+`--baseline` names another version of ushape/data/real/mesh_sdf.py (e.g. `git show <commit>:ushape/data/real/mesh_sdf.py
 > old.py`), measured on the same samples beside the current one. Prints markdown tables; the
 numbers measured for issue #18 are in docs/mesh_sdf_signs.md.
 """
@@ -22,10 +22,10 @@ from typing import Any, Optional
 import igl
 import numpy as np
 
-from ushape.data import mesh_sdf, sign_cases
-from ushape.data.pix3d import load_voxels, voxel_to_model
+from ushape.data.real import mesh_sdf, sign_cases
+from ushape.data.real.pix3d import load_voxels, voxel_to_model
+from ushape.data.real.voxel_check import has_interior, read_solid_binvox, tolerant_truth
 from ushape.data.sampling import sample_points
-from ushape.data.voxel_check import has_interior, read_solid_binvox, tolerant_truth
 
 AWAY = 0.01  # known-answer meshes: only samples at least this far from the surface count (unit-sphere frame)
 TIMING_CHAIR = "ShapeNetCore.v2/03001627/1a6f615e8b1b5ae4dbbc9440457e303e/models/model_normalized.obj"

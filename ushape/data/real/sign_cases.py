@@ -2,7 +2,7 @@
 
 Each case is a triangle mesh as a modeller might have saved it and the solid it stands for,
 as a union of axis-aligned boxes or a ball, so every point's right sign is computable exactly.
-The tests check `ushape.data.mesh_signs` on them and the sign benchmark measures old and new
+The tests check `ushape.data.real.mesh_signs` on them and the sign benchmark measures old and new
 methods on the same meshes.
 """
 

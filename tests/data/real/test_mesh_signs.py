@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from ushape.data import sign_cases
-from ushape.data.mesh_sdf import MeshProcessingError, MeshSdf, SignReport, sample_mesh_sdf
-from ushape.data.mesh_signs import (
+from ushape.data.real import sign_cases
+from ushape.data.real.mesh_sdf import MeshProcessingError, MeshSdf, SignReport, sample_mesh_sdf
+from ushape.data.real.mesh_signs import (
     INSIDE_ESCAPE,
     MeshSigns,
     clean_triangles,
@@ -141,7 +141,7 @@ def test_hemisphere_directions_are_unit_and_on_the_normal_side(rng):
 
 
 def test_sign_benchmark_prints_the_known_answer_table(capsys):
-    from ushape.data import mesh_sdf_bench
+    from ushape.data.real import mesh_sdf_bench
 
     assert mesh_sdf_bench.main(["--samples", "2000"]) == 0
     table = capsys.readouterr().out

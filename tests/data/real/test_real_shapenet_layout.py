@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from ushape.data import shapenet
+from ushape.data.real import shapenet
 
 CHAIRS = "03001627"
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
-REAL_SAMPLE = Path(os.path.dirname(os.path.abspath(__file__))).parents[2] / "shared" / "data" / "real_sample"
+REAL_SAMPLE = Path(os.path.dirname(os.path.abspath(__file__))).parents[3] / "shared" / "data" / "real_sample"
 CHAIRS = "03001627"
 
 

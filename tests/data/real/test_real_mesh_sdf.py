@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from ushape.data.mesh_sdf import (
+from ushape.data.real.mesh_sdf import (
     UNIT_SPHERE_BUFFER,
     MeshProcessingError,
     MeshSdf,

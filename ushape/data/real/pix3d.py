@@ -48,7 +48,7 @@ from ushape import atomic
 from ushape.data import integrity
 from ushape.data.augment import MASK_MODES, build_transform
 from ushape.data.layout import WorldIndex
-from ushape.data.mesh_sdf import MeshProcessingError, load_mesh, normalise_mesh, previous_signs, sample_mesh_sdf
+from ushape.data.real.mesh_sdf import MeshProcessingError, load_mesh, normalise_mesh, previous_signs, sample_mesh_sdf
 
 log = logging.getLogger(__name__)
 
