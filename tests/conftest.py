@@ -38,23 +38,41 @@ def make_tiny_run(base) -> dict:
     """{"run": run folder, "world": world root, "decoder_dir": ..., "checkpoint": best.ckpt} under base."""
     world, decoder_dir, run = base / "world", base / "decoder", base / "outputs" / "runs" / "d" / "t_encoder"
     K, w2c = zip(*(look_at(40.0 * v, 25.0, 2.0, 49.13, TINY_RENDER_SIZE) for v in range(TINY_VIEWS)))
-    write_render_world(world, TINY_SPLITS, TINY_VIEWS, np.random.default_rng(0), TINY_RENDER_SIZE, np.stack(K), np.stack(w2c))
+    write_render_world(
+        world, TINY_SPLITS, TINY_VIEWS, np.random.default_rng(0), TINY_RENDER_SIZE, np.stack(K), np.stack(w2c)
+    )
     write_decoder_folder(decoder_dir, TINY_SPLITS, TINY_LATENT)
     encoder = tiny_encoder_config(TINY_LATENT)
     loss = {"_target_": "ushape.encoder.losses.gaussian_nll"}
     model = EncoderModule(str(decoder_dir), encoder, loss, lr=1e-3)
     data = EncoderDataModule(world, decoder_dir, image_size=TINY_IMAGE_SIZE, batch_size=4)
-    trainer = L.Trainer(accelerator="cpu", max_steps=1, logger=False, enable_checkpointing=False,
-                        enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0,
-                        default_root_dir=base)
+    trainer = L.Trainer(
+        accelerator="cpu",
+        max_steps=1,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        limit_val_batches=0,
+        default_root_dir=base,
+    )
     trainer.fit(model, datamodule=data)
     checkpoint = run / "checkpoints" / "best.ckpt"
     checkpoint.parent.mkdir(parents=True)
     trainer.save_checkpoint(checkpoint)
     (run / ".hydra").mkdir()
-    (run / ".hydra" / "config.yaml").write_text(f"stage2:\n  data:\n    image_size: {TINY_IMAGE_SIZE}\n    mask_mode: gt_mask\n")
-    atomic.write_json(run / "run.json", {"stage": "encoder", "world": str(world), "decoder_dir": str(decoder_dir),
-                                         "encoder_checkpoint": str(checkpoint)})
+    (run / ".hydra" / "config.yaml").write_text(
+        f"stage2:\n  data:\n    image_size: {TINY_IMAGE_SIZE}\n    mask_mode: gt_mask\n"
+    )
+    atomic.write_json(
+        run / "run.json",
+        {
+            "stage": "encoder",
+            "world": str(world),
+            "decoder_dir": str(decoder_dir),
+            "encoder_checkpoint": str(checkpoint),
+        },
+    )
     return {"root": base, "run": run, "world": world, "decoder_dir": decoder_dir, "checkpoint": checkpoint}
 
 

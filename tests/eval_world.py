@@ -76,8 +76,11 @@ def _disc(radius, rng):
 def build_sphere_world(root):
     rng = np.random.default_rng(0)
     # The same shapes in every split, so a real encoder can be fitted on this world in a test.
-    world = new_world(root, {split: list(RADII) for split in ("train", "val", "test")},
-                      {"category": "spheres", "n_views": N_VIEWS, "image_size": IMAGE})
+    world = new_world(
+        root,
+        {split: list(RADII) for split in ("train", "val", "test")},
+        {"category": "spheres", "n_views": N_VIEWS, "image_size": IMAGE},
+    )
     for shape_id, radius in RADII.items():
         mesh = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
         mesh.apply_scale([radius, B, B])
@@ -88,8 +91,13 @@ def build_sphere_world(root):
         sdf = ellipsoid_sdf(torch.from_numpy(points), torch.tensor(radius, dtype=torch.float64)).numpy()
         write_sdf(world, shape_id, np.concatenate([points, sdf[:, None]], 1))
         cameras = [look_at(360 * v / N_VIEWS, 20, 3.0, 40, IMAGE) for v in range(N_VIEWS)]
-        write_views(world, shape_id, [_disc(radius, rng) for _ in range(N_VIEWS)],
-                    K=np.stack([c[0] for c in cameras]), world_to_cam=np.stack([c[1] for c in cameras]))
+        write_views(
+            world,
+            shape_id,
+            [_disc(radius, rng) for _ in range(N_VIEWS)],
+            K=np.stack([c[0] for c in cameras]),
+            world_to_cam=np.stack([c[1] for c in cameras]),
+        )
     return WorldIndex.load(root)
 
 
@@ -108,9 +116,19 @@ def sphere_codes(tmp_path_factory):
 
 
 def tiny_settings(**overrides):
-    values = dict(group_size=4, resolution=24, n_points=128, sdf_points=200, mc_samples=4,
-                  single_view_scales=(1.0, 0.1), corrupted_scales=(0.4, 0.1), table4_k=2, calibration_levels=10,
-                  locality_points=200, depth_size=16)
+    values = dict(
+        group_size=4,
+        resolution=24,
+        n_points=128,
+        sdf_points=200,
+        mc_samples=4,
+        single_view_scales=(1.0, 0.1),
+        corrupted_scales=(0.4, 0.1),
+        table4_k=2,
+        calibration_levels=10,
+        locality_points=200,
+        depth_size=16,
+    )
     return Settings(**{**values, **overrides})
 
 
@@ -120,8 +138,9 @@ def make_run(world, codes_dir, cache_dir, name, tmp_path, settings):
     labels = {"es": "Ours", "nll": "Ours-NLL", "l2": "FroDO*"}
     predictor = FakePredictor(checkpoint, probabilistic=name != "l2")
     spec = EncoderSpec(name, labels[name], predictor.probabilistic)
-    reconstructor = Reconstructor(predictor.decoder, "spheres", world, settings.resolution, cache_dir,
-                                  n_points=settings.n_points)
+    reconstructor = Reconstructor(
+        predictor.decoder, "spheres", world, settings.resolution, cache_dir, n_points=settings.n_points
+    )
     return EncoderRun(spec, predictor, world, reconstructor, codes_dir, test_views(world))
 
 
@@ -145,7 +164,7 @@ def evaluated_dir(sphere_world, sphere_codes, tmp_path_factory):
 
 
 def fit_sphere_run(world, tmp_path):
-    """A finished encoder run folder (under tmp_path/run) (run.json + checkpoint) trained for a few steps on the ellipsoid world."""
+    """A finished run folder, tmp_path/run (run.json + checkpoint), trained a few steps on the ellipsoid world."""
     from ushape.encoder.fit import fit_encoder
 
     decoder_dir = tmp_path / "decoder"
@@ -155,12 +174,33 @@ def fit_sphere_run(world, tmp_path):
         save_codes(decoder_dir / codes_file(split), table)
     run_dir = tmp_path / "run"
     encoder = tiny_encoder_config(3)
-    checkpoint = fit_encoder(world.root, decoder_dir, run_dir, encoder=encoder,
-                             loss={"_target_": "ushape.encoder.losses.gaussian_nll"},
-                             module={"lr": 0.01, "val_samples": 16}, data={"image_size": 16, "batch_size": 8},
-                             trainer={"accelerator": "cpu", "max_epochs": 1, "limit_train_batches": 1,
-                                      "limit_val_batches": 1, "num_sanity_val_steps": 0, "enable_progress_bar": False,
-                                      "enable_model_summary": False}, logger=False)
-    (run_dir / "run.json").write_text(json.dumps({"stage": "encoder", "world": str(world.root),
-                                                  "decoder_dir": str(decoder_dir), "encoder_checkpoint": str(checkpoint)}))
+    checkpoint = fit_encoder(
+        world.root,
+        decoder_dir,
+        run_dir,
+        encoder=encoder,
+        loss={"_target_": "ushape.encoder.losses.gaussian_nll"},
+        module={"lr": 0.01, "val_samples": 16},
+        data={"image_size": 16, "batch_size": 8},
+        trainer={
+            "accelerator": "cpu",
+            "max_epochs": 1,
+            "limit_train_batches": 1,
+            "limit_val_batches": 1,
+            "num_sanity_val_steps": 0,
+            "enable_progress_bar": False,
+            "enable_model_summary": False,
+        },
+        logger=False,
+    )
+    (run_dir / "run.json").write_text(
+        json.dumps(
+            {
+                "stage": "encoder",
+                "world": str(world.root),
+                "decoder_dir": str(decoder_dir),
+                "encoder_checkpoint": str(checkpoint),
+            }
+        )
+    )
     return run_dir

@@ -28,17 +28,23 @@ def test_a_plain_mapping_builds_the_default():
 
 
 def test_the_trainer_config_builds_a_lightning_trainer(tmp_path):
-    trainer = build({"_target_": "lightning.pytorch.Trainer", "accelerator": "cpu", "max_epochs": 1,
-                     "enable_progress_bar": False}, L.Trainer, default_root_dir=str(tmp_path), logger=False)
+    trainer = build(
+        {"_target_": "lightning.pytorch.Trainer", "accelerator": "cpu", "max_epochs": 1, "enable_progress_bar": False},
+        L.Trainer,
+        default_root_dir=str(tmp_path),
+        logger=False,
+    )
     assert isinstance(trainer, L.Trainer) and trainer.max_epochs == 1
 
 
 def test_callbacks_are_built_in_order_and_null_entries_dropped():
-    configs = OmegaConf.create({
-        "lr_monitor": {"_target_": "lightning.pytorch.callbacks.LearningRateMonitor", "logging_interval": "step"},
-        "off": None,
-        "early_stopping": {"_target_": "lightning.pytorch.callbacks.EarlyStopping", "monitor": "val/loss"},
-    })
+    configs = OmegaConf.create(
+        {
+            "lr_monitor": {"_target_": "lightning.pytorch.callbacks.LearningRateMonitor", "logging_interval": "step"},
+            "off": None,
+            "early_stopping": {"_target_": "lightning.pytorch.callbacks.EarlyStopping", "monitor": "val/loss"},
+        }
+    )
     built = build_all(configs)
     assert [type(c) for c in built] == [LearningRateMonitor, EarlyStopping]
     assert build_all(None) == []

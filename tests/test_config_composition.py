@@ -42,8 +42,19 @@ ALL = [(g, o) for g in GROUPS for o in _options(g)]
 
 
 def test_every_group_has_options():
-    assert {"category", "data", "decoder", "encoder", "loss", "fusion", "crop", "trainer", "logger",
-            "experiment", "paths"} <= set(GROUPS)
+    assert {
+        "category",
+        "data",
+        "decoder",
+        "encoder",
+        "loss",
+        "fusion",
+        "crop",
+        "trainer",
+        "logger",
+        "experiment",
+        "paths",
+    } <= set(GROUPS)
     assert not [g for g in GROUPS if not _options(g)]
 
 

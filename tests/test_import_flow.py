@@ -17,9 +17,25 @@ PACKAGE = ROOT / "ushape"
 # stage 1, stage 2, fusion, propagation, recalibration, and the commands built on all of them, with
 # the `ushape` command that runs each of them last.
 FLOW = (
-    "torchvision_cpu", "atomic", "workspace", "checkpoints", "builders", "shapes", "data", "mesh", "metrics",
-    "decoder", "encoder", "fusion", "propagation", "recalibration", "reconstruction", "training",
-    "evaluation", "bench", "cli",
+    "torchvision_cpu",
+    "atomic",
+    "workspace",
+    "checkpoints",
+    "builders",
+    "shapes",
+    "data",
+    "mesh",
+    "metrics",
+    "decoder",
+    "encoder",
+    "fusion",
+    "propagation",
+    "recalibration",
+    "reconstruction",
+    "training",
+    "evaluation",
+    "bench",
+    "cli",
 )
 FLOW_LINE = " -> ".join(FLOW)
 
@@ -63,7 +79,8 @@ def test_imports_run_only_downstream():
 
 def test_the_readme_states_the_same_flow():
     assert FLOW_LINE in (ROOT / "README.md").read_text(encoding="utf-8"), (
-        f"the README's layout section must quote the flow as written in this test: {FLOW_LINE}")
+        f"the README's layout section must quote the flow as written in this test: {FLOW_LINE}"
+    )
 
 
 @pytest.mark.parametrize("source, target", [("decoder", "encoder"), ("mesh", "decoder")])

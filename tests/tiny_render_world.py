@@ -4,7 +4,6 @@ A uniquely named module (several conftests share the name `conftest`): import it
 Every render is a random-coloured RGBA image whose alpha is a centred disc.
 """
 
-
 import numpy as np
 import torch
 from fake_world import new_world, write_views
@@ -19,8 +18,13 @@ def tiny_encoder_config(latent: int) -> dict:
 
 
 def tiny_decoder_config(latent: int) -> dict:
-    return {"_target_": "ushape.decoder.network.DeepSDFDecoder", "latent_size": latent, "hidden_dims": [16, 16],
-            "latent_in": [1], "dropout": 0.0}
+    return {
+        "_target_": "ushape.decoder.network.DeepSDFDecoder",
+        "latent_size": latent,
+        "hidden_dims": [16, 16],
+        "latent_in": [1],
+        "dropout": 0.0,
+    }
 
 
 def random_disc(rng, size):
@@ -44,5 +48,7 @@ def write_decoder_folder(folder, split_sizes: dict, latent: int):
     config = tiny_decoder_config(latent)
     save_decoder(folder / "decoder.pt", DeepSDFDecoder(**{k: v for k, v in config.items() if k != "_target_"}), config)
     for split, n in split_sizes.items():
-        save_codes(folder / codes_file(split), CodeTable([f"{split}_{i}" for i in range(n)], 0.1 * torch.randn(n, latent)))
+        save_codes(
+            folder / codes_file(split), CodeTable([f"{split}_{i}" for i in range(n)], 0.1 * torch.randn(n, latent))
+        )
     return folder

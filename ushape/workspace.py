@@ -1,12 +1,12 @@
 """The names of what a run leaves on disk, in one place (as DeepSDF's workspace.py keeps them).
 
-    outputs/runs/<date>/<time>_<stage>_<category>[_<loss>]/    one `python train.py` run
-        run.json                 the finished run's record (stage, world, decoder, checkpoint, seconds)
-        .hydra/config.yaml       the composed config
-        checkpoints/best.ckpt    stage 2: the best validation epoch
-        checkpoints/last.ckpt    the newest epoch, rewritten every epoch (what a resume starts from)
-        temperature.json         stage 2: the variance temperature fitted on val (reconstruct.py --fit-temperature)
-    outputs/multirun/<sweep>/<job>/                           the same, one folder per sweep job
+outputs/runs/<date>/<time>_<stage>_<category>[_<loss>]/    one `python train.py` run
+    run.json                 the finished run's record (stage, world, decoder, checkpoint, seconds)
+    .hydra/config.yaml       the composed config
+    checkpoints/best.ckpt    stage 2: the best validation epoch
+    checkpoints/last.ckpt    the newest epoch, rewritten every epoch (what a resume starts from)
+    temperature.json         stage 2: the variance temperature fitted on val (reconstruct.py --fit-temperature)
+outputs/multirun/<sweep>/<job>/                           the same, one folder per sweep job
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ def relocated(recorded: str | Path, run_dir: Path | None) -> Path:
         return path
     outputs = next((p for p in (run_dir.resolve(), *run_dir.resolve().parents) if p.name == OUTPUTS_DIR), None)
     if outputs is not None and OUTPUTS_DIR in path.parts:
-        tail = path.parts[len(path.parts) - path.parts[::-1].index(OUTPUTS_DIR):]
+        tail = path.parts[len(path.parts) - path.parts[::-1].index(OUTPUTS_DIR) :]
         candidate = outputs.joinpath(*tail)
         if candidate.exists():
             return candidate

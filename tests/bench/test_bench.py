@@ -10,11 +10,20 @@ from ushape.bench.computation import Measurement, bench_decoder
 from ushape.bench.report import DecoderBench, ratio_rows
 
 DECODER_ROWS = [
-    "decoder field fp32", "decoder field bf16", "marching cubes", "mesh dense (field + MC)", "mesh coarse-to-fine",
-    "vertex uncertainty mc M=10", "vertex uncertainty linearised", "field uncertainty mc M=10",
-    "field uncertainty linearised", "mesh with uncertainty (coarse-to-fine + vertex linearised)",
-    "mesh with uncertainty (coarse-to-fine + vertex mc M=10)", "field uncertainty linearised narrow band",
-    "field uncertainty mc M=10 narrow band", "depth uncertainty mc M=10 (2 views)",
+    "decoder field fp32",
+    "decoder field bf16",
+    "marching cubes",
+    "mesh dense (field + MC)",
+    "mesh coarse-to-fine",
+    "vertex uncertainty mc M=10",
+    "vertex uncertainty linearised",
+    "field uncertainty mc M=10",
+    "field uncertainty linearised",
+    "mesh with uncertainty (coarse-to-fine + vertex linearised)",
+    "mesh with uncertainty (coarse-to-fine + vertex mc M=10)",
+    "field uncertainty linearised narrow band",
+    "field uncertainty mc M=10 narrow band",
+    "depth uncertainty mc M=10 (2 views)",
     "depth uncertainty implicit (2 views)",
 ]
 
@@ -26,11 +35,17 @@ def _seconds(cell):
 
 def test_quick_bench_writes_the_whole_table(tmp_path, capsys):
     out = tmp_path / "bench.md"
-    assert main(["--quick", "--resolution", "16", "--deepsdf-fraction", "0.25", "--depth-views", "2", "--out", str(out)]) == 0
+    assert (
+        main(["--quick", "--resolution", "16", "--deepsdf-fraction", "0.25", "--depth-views", "2", "--out", str(out)])
+        == 0
+    )
     text = out.read_text()
     assert text in capsys.readouterr().out
-    rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]] for line in text.splitlines()
-            if line.startswith("| ") and not line.startswith("| step") and not line.startswith("| ratio")}
+    rows = {
+        line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]]
+        for line in text.splitlines()
+        if line.startswith("| ") and not line.startswith("| step") and not line.startswith("| ratio")
+    }
     for name in DECODER_ROWS:
         small, deepsdf = rows[name][:2]
         assert _seconds(small) > 0 and _seconds(deepsdf) > 0, name
@@ -46,15 +61,25 @@ def test_quick_bench_writes_the_whole_table(tmp_path, capsys):
 
 
 def test_ratios_and_verdicts_from_known_timings():
-    bench = DecoderBench("d", "test", 1, [
-        Measurement("decoder field fp32", 1.0), Measurement("decoder field bf16", 0.5),
-        Measurement("mesh dense (field + MC)", 1.2), Measurement("mesh coarse-to-fine", 0.4),
-        Measurement("vertex uncertainty mc M=10", 0.2), Measurement("vertex uncertainty linearised", 0.02, points=10),
-        Measurement("field uncertainty mc M=10", 10.0), Measurement("field uncertainty linearised", 1.5, points=1000),
-        Measurement("field uncertainty linearised narrow band", 0.15),
-        Measurement("field uncertainty mc M=10 narrow band", 0.6),
-        Measurement("depth uncertainty mc M=10 (12 views)", 9.0), Measurement("depth uncertainty implicit (12 views)", 1.0),
-    ])
+    bench = DecoderBench(
+        "d",
+        "test",
+        1,
+        [
+            Measurement("decoder field fp32", 1.0),
+            Measurement("decoder field bf16", 0.5),
+            Measurement("mesh dense (field + MC)", 1.2),
+            Measurement("mesh coarse-to-fine", 0.4),
+            Measurement("vertex uncertainty mc M=10", 0.2),
+            Measurement("vertex uncertainty linearised", 0.02, points=10),
+            Measurement("field uncertainty mc M=10", 10.0),
+            Measurement("field uncertainty linearised", 1.5, points=1000),
+            Measurement("field uncertainty linearised narrow band", 0.15),
+            Measurement("field uncertainty mc M=10 narrow band", 0.6),
+            Measurement("depth uncertainty mc M=10 (12 views)", 9.0),
+            Measurement("depth uncertainty implicit (12 views)", 1.0),
+        ],
+    )
     got = {name: (value, passed) for name, value, _, passed in ratio_rows(bench)}
     assert got["coarse-to-fine mesh / dense mesh"] == (0.4 / 1.2, None)
     assert got["field w/ unc (linearised) / field"] == (1.5, True)
@@ -62,7 +87,9 @@ def test_ratios_and_verdicts_from_known_timings():
     assert got["narrow-band field w/ unc (linearised) / field"] == (0.15, True)
     assert got["narrow-band field w/ unc (MC M=10) / field"] == (0.6, None)
     assert got["depth unc MC M=10 / implicit (speed-up)"] == (9.0, False)
-    assert got["vertex linearised per vertex / field linearised per point"][0] == pytest.approx((0.02 / 10) / (1.5 / 1000))
+    assert got["vertex linearised per vertex / field linearised per point"][0] == pytest.approx(
+        (0.02 / 10) / (1.5 / 1000)
+    )
     assert got["mesh w/ unc (linearised) / mesh, coarse-to-fine"][1] is True  # 1.05x
     assert got["mesh w/ unc (MC M=10) / mesh, coarse-to-fine"][1] is False  # 1.5x
     assert got["field bf16 / field fp32"] == (0.5, None)
@@ -83,8 +110,15 @@ def test_fitted_decoder_has_the_chair_surface_and_is_cached(tmp_path):
 
     from ushape.bench.fitted import chair_samples, fitted_decoder
 
-    config = OmegaConf.create({"_target_": "ushape.decoder.network.DeepSDFDecoder", "latent_size": 4,
-                               "hidden_dims": [32, 32], "latent_in": [], "dropout": 0.0})
+    config = OmegaConf.create(
+        {
+            "_target_": "ushape.decoder.network.DeepSDFDecoder",
+            "latent_size": 4,
+            "hidden_dims": [32, 32],
+            "latent_in": [],
+            "dropout": 0.0,
+        }
+    )
     code = torch.zeros(4)
     points, sdf = chair_samples(0)
     first, provenance = fitted_decoder(config, code, 150, tmp_path)

@@ -30,13 +30,16 @@ def test_depth_rows_time_both_methods_and_report_their_agreement():
     cameras = orbit_cameras(3, 10)
     codes = sample_codes(mu, var, 4, torch.Generator().manual_seed(2))
     mc = pooled_stats([depth_uncertainty(RadiusDecoder(), codes, K, w2c, (10, 10), 30) for K, w2c in cameras])
-    implicit = pooled_stats([depth_uncertainty_implicit(RadiusDecoder(), mu, var, K, w2c, (10, 10), 30)
-                             for K, w2c in cameras])
+    implicit = pooled_stats(
+        [depth_uncertainty_implicit(RadiusDecoder(), mu, var, K, w2c, (10, 10), 30) for K, w2c in cameras]
+    )
     agreement = std_agreement(implicit, mc)
     assert agreement["pixels"] > 20
-    assert (f"MC M=4 over the {agreement['pixels']} pixels every code hit: median ratio "
-            f"{agreement['median_ratio']:.3f}, Pearson {agreement['pearson']:.3f}, Spearman "
-            f"{agreement['spearman']:.3f} (MC's own std error ~41%)") in rows[1].note
+    assert (
+        f"MC M=4 over the {agreement['pixels']} pixels every code hit: median ratio "
+        f"{agreement['median_ratio']:.3f}, Pearson {agreement['pearson']:.3f}, Spearman "
+        f"{agreement['spearman']:.3f} (MC's own std error ~41%)"
+    ) in rows[1].note
     assert "; vs MC M=6 over the " in rows[1].note and "faster than MC M=4" in rows[1].note
 
 

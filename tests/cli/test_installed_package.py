@@ -18,8 +18,9 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def _pip(*args: str, cwd: Path) -> None:
-    result = subprocess.run([sys.executable, "-m", "pip", "--disable-pip-version-check", *args], cwd=cwd,
-                            capture_output=True, text=True)
+    result = subprocess.run(
+        [sys.executable, "-m", "pip", "--disable-pip-version-check", *args], cwd=cwd, capture_output=True, text=True
+    )
     if result.returncode != 0 and "No module named pip" in result.stderr:
         pytest.skip("this environment has no pip")
     assert result.returncode == 0, result.stdout + result.stderr
@@ -47,8 +48,9 @@ def _ushape(installed, *args: str) -> subprocess.CompletedProcess:
     # tests/ too: the run's decoder is the analytic test double (analytic_decoder.EllipsoidDecoder).
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(site), str(ROOT / "tests")]), "USHAPE_ROOT": str(work)}
     code = "import sys, ushape; from ushape.cli import main; print('ushape from', ushape.__file__); sys.exit(main())"
-    result = subprocess.run([sys.executable, "-c", code, *args], cwd=work, env=env, capture_output=True,
-                            text=True, timeout=600)
+    result = subprocess.run(
+        [sys.executable, "-c", code, *args], cwd=work, env=env, capture_output=True, text=True, timeout=600
+    )
     assert result.returncode == 0, f"ushape {' '.join(args)} failed:\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}"
     assert f"ushape from {site}" in result.stdout, "the checkout's ushape ran instead of the installed wheel"
     return result
@@ -66,15 +68,38 @@ def test_reconstruct_eval_and_bench_run_from_the_installed_package(installed, tm
     world = build_sphere_world(tmp_path / "world")
     run = fit_sphere_run(world, tmp_path)  # an encoder trained a few steps; its decoder: analytic ellipsoids
     view = next(world.root.rglob("*.png"))
-    _ushape(installed, "reconstruct", str(view), "--run", str(run), "--out", str(work / "rec"),
-            "--resolution", "16", "--depth-size", "8", "--fusion", "bayesian_k", "--k", "1")
+    _ushape(
+        installed,
+        "reconstruct",
+        str(view),
+        "--run",
+        str(run),
+        "--out",
+        str(work / "rec"),
+        "--resolution",
+        "16",
+        "--depth-size",
+        "8",
+        "--fusion",
+        "bayesian_k",
+        "--k",
+        "1",
+    )
     assert (work / "rec" / "mesh.ply").is_file() and (work / "rec" / "summary.json").is_file()
 
-    _ushape(installed, "eval", f"runs=[{run}]", "protocols=[single_view]", "tensorboard=false",
-            f"cache_dir={work / 'cache'}", "protocol.resolution=16", "protocol.n_points=64",
-            "protocol.single_view_views=1", f"out_dir={work / 'eval'}")
+    _ushape(
+        installed,
+        "eval",
+        f"runs=[{run}]",
+        "protocols=[single_view]",
+        "tensorboard=false",
+        f"cache_dir={work / 'cache'}",
+        "protocol.resolution=16",
+        "protocol.n_points=64",
+        "protocol.single_view_views=1",
+        f"out_dir={work / 'eval'}",
+    )
     assert "Table 1" in (work / "eval" / "tables.md").read_text()
 
-    _ushape(installed, "bench", "--quick", "--decoders", "small", "--depth-views", "0", "--out",
-            str(work / "bench.md"))
+    _ushape(installed, "bench", "--quick", "--decoders", "small", "--depth-views", "0", "--out", str(work / "bench.md"))
     assert "decoder field fp32" in (work / "bench.md").read_text()

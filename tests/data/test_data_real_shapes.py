@@ -13,8 +13,17 @@ from ushape.data.world import SyntheticWorld  # noqa: E402
 
 @pytest.mark.parametrize("category", shapes.CATEGORIES)
 def test_tiny_real_world(category, tmp_path):
-    world = SyntheticWorld(category, str(tmp_path), n_train=2, n_val=1, n_test=1, samples_per_shape=500,
-                           n_views=2, image_size=48, mesh_resolution=48)
+    world = SyntheticWorld(
+        category,
+        str(tmp_path),
+        n_train=2,
+        n_val=1,
+        n_test=1,
+        samples_per_shape=500,
+        n_views=2,
+        image_size=48,
+        mesh_resolution=48,
+    )
     index = world.build()
     assert WorldIndex.load(index.root).splits == index.splits
     for sid in index.shape_ids():

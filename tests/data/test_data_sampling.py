@@ -31,8 +31,8 @@ def test_near_surface_noise_has_deepsdf_variances(sphere_mesh):
     # For a sphere the SDF of a jittered surface point is the noise along the normal: N(0, variance).
     sdf = sphere_sdf(points)
     assert np.std(sdf[:n_coarse]) == pytest.approx(np.sqrt(0.005), rel=0.05)
-    assert np.std(sdf[n_coarse:n_coarse + n_fine]) == pytest.approx(np.sqrt(0.0005), rel=0.05)
-    uniform = points[n_coarse + n_fine:]
+    assert np.std(sdf[n_coarse : n_coarse + n_fine]) == pytest.approx(np.sqrt(0.0005), rel=0.05)
+    uniform = points[n_coarse + n_fine :]
     assert len(uniform) == n_uniform == 1200
     assert uniform.min() >= -1.0 and uniform.max() <= 1.0
     # Uniform in the cube: each coordinate has variance 1/3, not concentrated near the surface.

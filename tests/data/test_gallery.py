@@ -29,8 +29,18 @@ def test_gallery_from_shapes_and_world(tmp_path):
     assert image.size[0] == 2 * (2 * 40 + 8) and image.size[1] == 2 * (40 + LABEL_LINES * 12 + 8)
     pixels = np.asarray(image)
     assert (pixels < 200).any(axis=-1).mean() > 0.02  # shapes and labels drawn, not a blank page
-    index = SyntheticWorld("chairs", str(tmp_path), 2, 0, 0, samples_per_shape=100, n_views=3, image_size=24,
-                           mesh_resolution=24, shape_factory=toy_shape_factory).build()
+    index = SyntheticWorld(
+        "chairs",
+        str(tmp_path),
+        2,
+        0,
+        0,
+        samples_per_shape=100,
+        n_views=3,
+        image_size=24,
+        mesh_resolution=24,
+        shape_factory=toy_shape_factory,
+    ).build()
     world_cells = cells_from_world(index, 5, 2)
     assert len(world_cells) == 2 and world_cells[0][1][0] == index.splits["train"][0]
     out = tmp_path / "gallery.png"

@@ -46,8 +46,12 @@ def test_every_command_opening_a_world_repairs_it_and_names_the_file(tmp_path, d
     index = tiny_world(tmp_path).build()
     sid = index.shape_ids("test")[0]
     intact = _files(index.root)
-    path = {"garbage_ply": index.mesh_path(sid), "truncated_npz": index.sdf_path(sid),
-            "deleted_render": index.image_paths(sid)[2], "truncated_render": index.image_paths(sid)[0]}[damage]
+    path = {
+        "garbage_ply": index.mesh_path(sid),
+        "truncated_npz": index.sdf_path(sid),
+        "deleted_render": index.image_paths(sid)[2],
+        "truncated_render": index.image_paths(sid)[0],
+    }[damage]
     if damage == "garbage_ply":
         path.write_bytes(b"ply\nformat ascii 1.0\nthis is not a mesh\n")
     elif damage == "deleted_render":

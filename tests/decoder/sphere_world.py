@@ -70,14 +70,26 @@ def fitted_sphere_folder(sphere_world, tmp_path_factory):
     """A finished stage-1 folder for the sphere world (decoder, codes, checkpoints, TensorBoard)."""
     from ushape.decoder.fit import fit_decoder
 
-    decoder = {"_target_": "ushape.decoder.network.DeepSDFDecoder", "latent_size": 8,
-               "hidden_dims": [64, 64, 64], "latent_in": [2], "dropout": 0.0}
+    decoder = {
+        "_target_": "ushape.decoder.network.DeepSDFDecoder",
+        "latent_size": 8,
+        "hidden_dims": [64, 64, 64],
+        "latent_in": [2],
+        "dropout": 0.0,
+    }
     return fit_decoder(
         sphere_world,
         tmp_path_factory.mktemp("stage1") / "decoder",
         decoder,
-        module={"latent_size": 8, "lr_net": 2e-3, "lr_codes": 1e-2, "code_reg_warmup_epochs": 10,
-                "val_every_n_epochs": 60, "val_mesh_resolution": 32, "val_chamfer_points": 5000},
+        module={
+            "latent_size": 8,
+            "lr_net": 2e-3,
+            "lr_codes": 1e-2,
+            "code_reg_warmup_epochs": 10,
+            "val_every_n_epochs": 60,
+            "val_mesh_resolution": 32,
+            "val_chamfer_points": 5000,
+        },
         trainer={**FAST_TRAINER, "max_epochs": 120},
         data={"samples_per_shape": 1024, "shapes_per_batch": 4, "val_num_shapes": 2},
         latent_optim={"iterations": 200, "lr_drop_at": 150, "samples_per_iter": 2000},

@@ -16,7 +16,11 @@ from ushape.decoder.query import code_sdf_fn
 
 
 def test_codes_start_at_deepsdf_scale(tiny_decoder_config):
-    module = AutoDecoderModule(decoder={**tiny_decoder_config, "latent_size": 64, "hidden_dims": [128, 128, 128]}, num_shapes=2000, latent_size=64)
+    module = AutoDecoderModule(
+        decoder={**tiny_decoder_config, "latent_size": 64, "hidden_dims": [128, 128, 128]},
+        num_shapes=2000,
+        latent_size=64,
+    )
     assert module.codes.weight.std().item() == pytest.approx(1 / 8, rel=0.03)
     assert module.codes.weight.mean().abs().item() < 0.01
 
@@ -42,8 +46,9 @@ def test_decoder_latent_size_must_match(tiny_decoder_config):
 def test_training_reduces_the_loss(sphere_world, tiny_decoder_config, bf16):
     L.seed_everything(0)
     dm = SDFDataModule(sphere_world, samples_per_shape=512, shapes_per_batch=4)
-    module = AutoDecoderModule(decoder=tiny_decoder_config, num_shapes=dm.num_shapes, latent_size=8,
-                               lr_net=3e-3, lr_codes=1e-2, bf16=bf16)
+    module = AutoDecoderModule(
+        decoder=tiny_decoder_config, num_shapes=dm.num_shapes, latent_size=8, lr_net=3e-3, lr_codes=1e-2, bf16=bf16
+    )
     batch = next(iter(dm.train_dataloader()))
 
     def loss() -> float:
@@ -65,15 +70,26 @@ class EpochCounter(L.Callback):
 
 
 def test_resume_continues_the_epoch_count(sphere_world, tiny_decoder_config, tmp_path):
-    kwargs = dict(module={"latent_size": 8, "val_every_n_epochs": 5}, data={"samples_per_shape": 64, "shapes_per_batch": 2},
-                  latent_optim={"iterations": 2, "samples_per_iter": 16}, checkpoint_every_n_epochs=1, logger=False)
+    kwargs = dict(
+        module={"latent_size": 8, "val_every_n_epochs": 5},
+        data={"samples_per_shape": 64, "shapes_per_batch": 2},
+        latent_optim={"iterations": 2, "samples_per_iter": 16},
+        checkpoint_every_n_epochs=1,
+        logger=False,
+    )
     out = fit_decoder(sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 2}, **kwargs)
     last = torch.load(out / "checkpoints" / "last.ckpt", weights_only=False)
     assert last["epoch"] == 1 and last["global_step"] == 2 * 2  # 4 shapes / 2 per batch = 2 steps per epoch
     (out / "DONE").unlink()  # as if the run had stopped before finishing
     counter = EpochCounter()
-    fit_decoder(sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 3},
-                callbacks=[counter], **kwargs)
+    fit_decoder(
+        sphere_world,
+        tmp_path,
+        tiny_decoder_config,
+        trainer={**FAST_TRAINER, "max_epochs": 3},
+        callbacks=[counter],
+        **kwargs,
+    )
     assert counter.started == [2]  # only the missing third epoch ran
     last = torch.load(out / "checkpoints" / "last.ckpt", weights_only=False)
     assert last["epoch"] == 2 and last["global_step"] == 3 * 2
@@ -108,8 +124,17 @@ def test_fit_logs_training_and_validation(fitted_sphere_folder):
     events = EventAccumulator(str(fitted_sphere_folder / "tensorboard"), size_guidance={"images": 0})
     events.Reload()
     scalars = set(events.Tags()["scalars"])
-    assert {"train/loss", "train/sdf_loss", "train/code_reg", "train/lr_net", "train/lr_codes",
-            "train/code_norm_mean", "train/code_norm_max", "val/chamfer", "val/iou"} <= scalars
+    assert {
+        "train/loss",
+        "train/sdf_loss",
+        "train/code_reg",
+        "train/lr_net",
+        "train/lr_codes",
+        "train/code_norm_mean",
+        "train/code_norm_max",
+        "val/chamfer",
+        "val/iou",
+    } <= scalars
     assert events.Scalars("val/iou")[-1].value > 0.8
     assert events.Scalars("val/chamfer")[-1].value < 2e-3
     assert "val/mesh/r60" in events.Tags()["images"]
@@ -122,8 +147,15 @@ def test_lr_steps_when_deepsdf_does():
 
 
 def test_module_schedule_follows_deepsdf(tiny_decoder_config):
-    module = AutoDecoderModule(decoder=tiny_decoder_config, num_shapes=2, latent_size=8, lr_net=1e-3, lr_codes=2e-3,
-                               lr_step_epochs=3, lr_gamma=0.5)
+    module = AutoDecoderModule(
+        decoder=tiny_decoder_config,
+        num_shapes=2,
+        latent_size=8,
+        lr_net=1e-3,
+        lr_codes=2e-3,
+        lr_step_epochs=3,
+        lr_gamma=0.5,
+    )
     scheduler = module.configure_optimizers()["lr_scheduler"]["scheduler"]
     lrs = []
     for _ in range(7):  # the lr used in epochs 0..6, then the epoch-end step Lightning takes
@@ -134,13 +166,22 @@ def test_module_schedule_follows_deepsdf(tiny_decoder_config):
     assert all(codes == pytest.approx(2 * net) for net, codes in lrs)
 
 
-RESUME_KWARGS = dict(module={"latent_size": 8, "val_every_n_epochs": 5}, data={"samples_per_shape": 64, "shapes_per_batch": 2},
-                     latent_optim={"iterations": 2, "samples_per_iter": 16}, checkpoint_every_n_epochs=1, logger=False)
+RESUME_KWARGS = dict(
+    module={"latent_size": 8, "val_every_n_epochs": 5},
+    data={"samples_per_shape": 64, "shapes_per_batch": 2},
+    latent_optim={"iterations": 2, "samples_per_iter": 16},
+    checkpoint_every_n_epochs=1,
+    logger=False,
+)
 
 
-def test_a_damaged_last_checkpoint_resumes_from_the_newest_intact_one(sphere_world, tiny_decoder_config, tmp_path, caplog):
+def test_a_damaged_last_checkpoint_resumes_from_the_newest_intact_one(
+    sphere_world, tiny_decoder_config, tmp_path, caplog
+):
     """A truncated last.ckpt used to fail every rerun with a raw traceback while epoch=1-step=4.ckpt sat beside it."""
-    out = fit_decoder(sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 2}, **RESUME_KWARGS)
+    out = fit_decoder(
+        sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 2}, **RESUME_KWARGS
+    )
     checkpoints = out / "checkpoints"
     assert sorted(p.name for p in checkpoints.iterdir()) == ["epoch=1-step=4.ckpt", "last.ckpt"]
     last = checkpoints / "last.ckpt"
@@ -148,8 +189,14 @@ def test_a_damaged_last_checkpoint_resumes_from_the_newest_intact_one(sphere_wor
     (out / "DONE").unlink()
     counter = EpochCounter()
     with caplog.at_level("WARNING", logger="ushape.checkpoints"):
-        fit_decoder(sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 3},
-                    callbacks=[counter], **RESUME_KWARGS)
+        fit_decoder(
+            sphere_world,
+            tmp_path,
+            tiny_decoder_config,
+            trainer={**FAST_TRAINER, "max_epochs": 3},
+            callbacks=[counter],
+            **RESUME_KWARGS,
+        )
     assert counter.started == [2]  # epochs 0-1 were kept, not retrained
     assert "last.ckpt is damaged" in caplog.text and "resuming from epoch=1-step=4.ckpt" in caplog.text
     assert (checkpoints / "last.ckpt.damaged").exists()
@@ -158,7 +205,9 @@ def test_a_damaged_last_checkpoint_resumes_from_the_newest_intact_one(sphere_wor
 
 def test_train_seconds_add_up_over_resumed_segments(sphere_world, tiny_decoder_config, tmp_path):
     """DONE's train_seconds counted only the last segment of a resumed stage 1."""
-    out = fit_decoder(sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 1}, **RESUME_KWARGS)
+    out = fit_decoder(
+        sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 1}, **RESUME_KWARGS
+    )
     last = out / "checkpoints" / "last.ckpt"
     blob = torch.load(last, weights_only=False)
     (clock,) = [k for k in blob["callbacks"] if k.startswith("TrainingClock")]

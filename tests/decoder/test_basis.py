@@ -15,8 +15,14 @@ from ushape.decoder.artifacts import (
 from ushape.decoder.basis import BASIS_FILE, ensure_basis, pca_basis, rebase_decoder, to_basis
 from ushape.decoder.network import DeepSDFDecoder
 
-CONFIG = {"_target_": "ushape.decoder.network.DeepSDFDecoder", "latent_size": 6, "hidden_dims": [32, 32, 32],
-          "latent_in": [2], "dropout": 0.2, "weight_norm": True}
+CONFIG = {
+    "_target_": "ushape.decoder.network.DeepSDFDecoder",
+    "latent_size": 6,
+    "hidden_dims": [32, 32, 32],
+    "latent_in": [2],
+    "dropout": 0.2,
+    "weight_norm": True,
+}
 
 
 def _decoder():
@@ -26,8 +32,11 @@ def _decoder():
 
 def test_pca_axes_are_orthonormal_and_decorrelate_the_codes():
     generator = torch.Generator().manual_seed(0)
-    codes = torch.randn(200, 4, generator=generator) @ torch.tensor(
-        [[3.0, 0, 0, 0], [1.0, 1.0, 0, 0], [0, 0, 0.5, 0], [0, 0, 0.2, 0.1]]) + 2.0
+    codes = (
+        torch.randn(200, 4, generator=generator)
+        @ torch.tensor([[3.0, 0, 0, 0], [1.0, 1.0, 0, 0], [0, 0, 0.5, 0], [0, 0, 0.2, 0.1]])
+        + 2.0
+    )
     mean, rotation, variance = pca_basis(codes)
     assert torch.allclose(rotation.T @ rotation, torch.eye(4), atol=1e-5)
     y = to_basis(codes, mean, rotation)

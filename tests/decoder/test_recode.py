@@ -26,11 +26,16 @@ def test_reoptimised_codes_fit_the_training_shapes_and_leave_the_rest(fitted_sph
     out = ensure_codes(fitted_sphere_folder, "reoptimised", sphere_world, LATENT_OPTIM)
     assert out == fitted_sphere_folder / "codes_reoptimised" and (out / DONE_FILE).is_file()
     for split in ("val", "test"):
-        assert torch.equal(load_codes(out / codes_file(split)).codes, load_codes(fitted_sphere_folder / codes_file(split)).codes)
+        assert torch.equal(
+            load_codes(out / codes_file(split)).codes, load_codes(fitted_sphere_folder / codes_file(split)).codes
+        )
     original, recoded = load_codes(fitted_sphere_folder / codes_file("train")), load_codes(out / codes_file("train"))
     assert recoded.shape_ids == original.shape_ids and not torch.equal(recoded.codes, original.codes)
     decoder = load_decoder(out)
-    assert all(torch.equal(a, b) for a, b in zip(decoder.state_dict().values(), load_decoder(fitted_sphere_folder).state_dict().values()))
+    assert all(
+        torch.equal(a, b)
+        for a, b in zip(decoder.state_dict().values(), load_decoder(fitted_sphere_folder).state_dict().values())
+    )
     # The re-optimised codes describe the same spheres about as well as the auto-decoded ones.
     assert _sdf_error(decoder, sphere_world, recoded) < max(0.01, 1.5 * _sdf_error(decoder, sphere_world, original))
     assert read_json(out / DONE_FILE)["latent_optim"] == LATENT_OPTIM

@@ -14,8 +14,15 @@ IMAGE_SIZE = 24
 def world(tmp_path):
     """<tmp>/world with splits and N_VIEWS renders (+ views.npz, identity cameras) per shape."""
     root = tmp_path / "world"
-    write_render_world(root, SPLIT_SIZES, N_VIEWS, np.random.default_rng(0), IMAGE_SIZE,
-                       K=np.tile(np.eye(3), (N_VIEWS, 1, 1)), world_to_cam=np.tile(np.eye(4), (N_VIEWS, 1, 1)))
+    write_render_world(
+        root,
+        SPLIT_SIZES,
+        N_VIEWS,
+        np.random.default_rng(0),
+        IMAGE_SIZE,
+        K=np.tile(np.eye(3), (N_VIEWS, 1, 1)),
+        world_to_cam=np.tile(np.eye(4), (N_VIEWS, 1, 1)),
+    )
     return root
 
 

@@ -31,7 +31,9 @@ def test_load_rgba_premultiplies_and_names_bad_files(tmp_path):
 
 
 def test_truncated_png_is_a_clear_error(tmp_path):
-    Image.fromarray(np.random.default_rng(0).integers(0, 255, (64, 64, 4), dtype=np.uint8), "RGBA").save(tmp_path / "t.png")
+    Image.fromarray(np.random.default_rng(0).integers(0, 255, (64, 64, 4), dtype=np.uint8), "RGBA").save(
+        tmp_path / "t.png"
+    )
     data = (tmp_path / "t.png").read_bytes()
     (tmp_path / "t.png").write_bytes(data[: len(data) // 2])
     with pytest.raises(ValueError, match="t.png"):

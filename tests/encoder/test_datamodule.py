@@ -41,7 +41,9 @@ def test_deterministic_items_repeat_random_transforms(world, decoder_dir):
     transform = build_transform(16, train=True, min_scale=0.1, mask_mode="none")
     ds = RenderDataset(world, "val", codes, transform=transform, deterministic=True, seed=3)
     assert torch.equal(ds[1]["image"], ds[1]["image"])
-    assert not torch.equal(ds[1]["image"], RenderDataset(world, "val", codes, transform=transform, deterministic=True, seed=4)[1]["image"])
+    assert not torch.equal(
+        ds[1]["image"], RenderDataset(world, "val", codes, transform=transform, deterministic=True, seed=4)[1]["image"]
+    )
 
 
 def test_missing_world_pieces_say_what_to_do(world, decoder_dir, tmp_path):

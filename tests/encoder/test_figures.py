@@ -37,11 +37,23 @@ def test_mesh_panel_builds():
 
 
 def test_validation_writes_figures_to_tensorboard(world, decoder_dir, tiny_encoder, tmp_path):
-    model = EncoderModule(str(decoder_dir), tiny_encoder, {"_target_": "ushape.encoder.losses.gaussian_nll"},
-                          log_meshes=True, mesh_views=2, mesh_resolution=12)
+    model = EncoderModule(
+        str(decoder_dir),
+        tiny_encoder,
+        {"_target_": "ushape.encoder.losses.gaussian_nll"},
+        log_meshes=True,
+        mesh_views=2,
+        mesh_resolution=12,
+    )
     logger = TensorBoardLogger(tmp_path, name="tb")
-    trainer = L.Trainer(accelerator="cpu", logger=logger, enable_checkpointing=False, enable_progress_bar=False,
-                        enable_model_summary=False, limit_val_batches=1)
+    trainer = L.Trainer(
+        accelerator="cpu",
+        logger=logger,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        limit_val_batches=1,
+    )
     trainer.validate(model, datamodule=EncoderDataModule(world, decoder_dir, image_size=16, batch_size=4))
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 

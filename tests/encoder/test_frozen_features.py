@@ -21,7 +21,9 @@ def test_cache_holds_clean_and_augmented_passes_and_is_reused(world, decoder_dir
     data.setup("fit")
     n_train = world_spec["splits"]["train"] * world_spec["n_views"]
     train = data.datasets["train"]
-    assert len(train) == 3 * n_train and len(data.datasets["val"]) == world_spec["splits"]["val"] * world_spec["n_views"]
+    assert (
+        len(train) == 3 * n_train and len(data.datasets["val"]) == world_spec["splits"]["val"] * world_spec["n_views"]
+    )
     clean, cropped = train.features[:n_train], train.features[n_train : 2 * n_train]
     assert not torch.allclose(clean, cropped)  # the augmented pass really is another image
     first = images.dataset("train", train=False)[0]
@@ -44,9 +46,17 @@ def test_fit_on_cached_features_trains_the_head_only(world, decoder_dir, tiny_en
     encoder = _frozen({**tiny_encoder, "backbone": lite0}, members=3)
     before = EncoderModule(str(decoder_dir), encoder, ES).encoder.state_dict()
     trainer = {"accelerator": "cpu", "max_epochs": 2, "enable_progress_bar": False, "enable_model_summary": False}
-    best = fit_encoder(world, decoder_dir, tmp_path / "run", encoder, ES, module={"optimizer": "adam", "lr": 1e-2},
-                       data={"image_size": 16, "batch_size": 4, "cached_features": True, "train_passes": 2},
-                       trainer=trainer, logger=False)
+    best = fit_encoder(
+        world,
+        decoder_dir,
+        tmp_path / "run",
+        encoder,
+        ES,
+        module={"optimizer": "adam", "lr": 1e-2},
+        data={"image_size": 16, "batch_size": 4, "cached_features": True, "train_passes": 2},
+        trainer=trainer,
+        logger=False,
+    )
     model = EncoderModule.load_from_checkpoint(best)
     after = model.encoder.state_dict()
     assert all(torch.equal(after[k], v) for k, v in before.items() if k.startswith("backbone."))
@@ -60,8 +70,16 @@ def test_cached_features_need_a_frozen_backbone(world, decoder_dir, tiny_encoder
     import pytest
 
     with pytest.raises(ValueError, match="freeze_backbone=true"):
-        fit_encoder(world, decoder_dir, tmp_path / "run", tiny_encoder, ES,
-                    data={"image_size": 16, "cached_features": True}, trainer={"max_epochs": 1}, logger=False)
+        fit_encoder(
+            world,
+            decoder_dir,
+            tmp_path / "run",
+            tiny_encoder,
+            ES,
+            data={"image_size": 16, "cached_features": True},
+            trainer={"max_epochs": 1},
+            logger=False,
+        )
 
 
 def test_frozen_backbone_stays_in_eval_mode_and_out_of_the_optimiser(decoder_dir, tiny_encoder):
@@ -74,9 +92,16 @@ def test_frozen_backbone_stays_in_eval_mode_and_out_of_the_optimiser(decoder_dir
 def test_the_head_reads_frozen_features_standardised_by_the_training_views(world, decoder_dir, tiny_encoder, tmp_path):
     encoder = _frozen(tiny_encoder)
     trainer = {"accelerator": "cpu", "max_epochs": 1, "enable_progress_bar": False, "enable_model_summary": False}
-    best = fit_encoder(world, decoder_dir, tmp_path / "run", encoder, ES,
-                       data={"image_size": 16, "batch_size": 4, "cached_features": True, "train_passes": 2},
-                       trainer=trainer, logger=False)
+    best = fit_encoder(
+        world,
+        decoder_dir,
+        tmp_path / "run",
+        encoder,
+        ES,
+        data={"image_size": 16, "batch_size": 4, "cached_features": True, "train_passes": 2},
+        trainer=trainer,
+        logger=False,
+    )
     model = EncoderModule.load_from_checkpoint(best)
     cached = torch.load(next((world / "features").glob("train-*.pt")), weights_only=False)["features"]
     assert torch.allclose(model.encoder.feature_mean, cached.mean(0), atol=1e-5)  # kept in the checkpoint

@@ -37,7 +37,9 @@ def test_es_agrees_with_scoringrules_fair_estimator_on_one_ensemble():
     samples = 0.3 * torch.randn(8, 1000, 16, generator=g, dtype=torch.float64) + 0.1
     target = torch.randn(8, 16, generator=g, dtype=torch.float64) * 0.2
     ours = energy_score_from_samples(samples, target).item()
-    ref = np.mean([sr.es_ensemble(y, x, estimator="fair", backend="numpy") for y, x in zip(target.numpy(), samples.numpy())])
+    ref = np.mean(
+        [sr.es_ensemble(y, x, estimator="fair", backend="numpy") for y, x in zip(target.numpy(), samples.numpy())]
+    )
     assert ours == pytest.approx(ref, rel=1e-2)
     assert ours != pytest.approx(ref, rel=1e-9)  # two estimators, not the same computation
 
@@ -57,7 +59,9 @@ def test_es_at_the_mean_in_d_dimensions_has_its_closed_form():
     d, sigma = 64, 0.05
     c_d = math.sqrt(2) * math.exp(math.lgamma((d + 1) / 2) - math.lgamma(d / 2))
     mu = torch.zeros(32, d)
-    es = energy_score(mu, torch.full_like(mu, 2 * math.log(sigma)), mu, n_samples=1000, generator=torch.Generator().manual_seed(0))
+    es = energy_score(
+        mu, torch.full_like(mu, 2 * math.log(sigma)), mu, n_samples=1000, generator=torch.Generator().manual_seed(0)
+    )
     assert es.item() == pytest.approx(sigma * c_d * (1 - 1 / math.sqrt(2)), rel=1e-2)
 
 
@@ -86,9 +90,15 @@ def test_es_is_reproducible_with_a_generator():
 
 
 def test_nll_is_the_true_negative_log_likelihood_minus_the_constant():
-    mu, logvar, z = torch.randn(5, 7, dtype=torch.float64), torch.randn(5, 7, dtype=torch.float64), torch.randn(5, 7, dtype=torch.float64)
+    mu, logvar, z = (
+        torch.randn(5, 7, dtype=torch.float64),
+        torch.randn(5, 7, dtype=torch.float64),
+        torch.randn(5, 7, dtype=torch.float64),
+    )
     true_nll = -torch.distributions.Normal(mu, torch.exp(0.5 * logvar)).log_prob(z).sum(-1).mean()
-    assert gaussian_nll(mu, logvar, z).item() == pytest.approx(true_nll.item() - 0.5 * 7 * math.log(2 * math.pi), rel=1e-12)
+    assert gaussian_nll(mu, logvar, z).item() == pytest.approx(
+        true_nll.item() - 0.5 * 7 * math.log(2 * math.pi), rel=1e-12
+    )
 
 
 def test_nll_by_hand():

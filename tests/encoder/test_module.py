@@ -16,8 +16,13 @@ ES = {"_target_": "ushape.encoder.losses.energy_score", "_partial_": True, "n_sa
 
 def _trainer(tmp_path, **kw):
     defaults = dict(
-        accelerator="cpu", max_epochs=1, logger=False, enable_checkpointing=False,
-        enable_progress_bar=False, enable_model_summary=False, default_root_dir=tmp_path,
+        accelerator="cpu",
+        max_epochs=1,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        default_root_dir=tmp_path,
     )
     return L.Trainer(**{**defaults, **kw})
 
@@ -38,8 +43,13 @@ def test_optimizer_configs_and_the_names_older_checkpoints_hold():
     adam = {"_target_": "torch.optim.Adam", "_partial_": True, "lr": 1e-3, "weight_decay": 0.0}
     assert optimizer_config(adam) == adam
     assert optimizer_config(adam, lr=0.01)["lr"] == 0.01  # a shorthand beside the config
-    assert optimizer_config("sgd") == {"_target_": "torch.optim.SGD", "_partial_": True, "lr": 0.1,
-                                       "weight_decay": 1e-4, "momentum": 0.9}
+    assert optimizer_config("sgd") == {
+        "_target_": "torch.optim.SGD",
+        "_partial_": True,
+        "lr": 0.1,
+        "weight_decay": 1e-4,
+        "momentum": 0.9,
+    }
     assert optimizer_config("adamw", lr=0.5)["_target_"] == "torch.optim.AdamW"
     with pytest.raises(ValueError, match="_target_"):
         optimizer_config({"lr": 0.1})
@@ -105,11 +115,21 @@ def test_poly_schedule_reaches_zero_at_max_epochs(world, decoder_dir, tiny_encod
 def test_fit_encoder_writes_a_loadable_checkpoint(world, decoder_dir, tmp_path, tiny_encoder):
     loss = {"_target_": "ushape.encoder.losses.gaussian_nll"}
     ckpt = fit_encoder(
-        world, decoder_dir, tmp_path / "run", encoder=tiny_encoder, loss=loss,
+        world,
+        decoder_dir,
+        tmp_path / "run",
+        encoder=tiny_encoder,
+        loss=loss,
         module={"lr": 0.01, "val_samples": 16},
         data={"image_size": 16, "batch_size": 4, "mask_mode": "none"},
-        trainer={"accelerator": "cpu", "max_epochs": 1, "limit_train_batches": 2, "limit_val_batches": 1,
-                 "num_sanity_val_steps": 0, "enable_progress_bar": False},
+        trainer={
+            "accelerator": "cpu",
+            "max_epochs": 1,
+            "limit_train_batches": 2,
+            "limit_val_batches": 1,
+            "num_sanity_val_steps": 0,
+            "enable_progress_bar": False,
+        },
     )
     assert ckpt.exists() and ckpt.parent == tmp_path / "run" / "checkpoints"
     assert (tmp_path / "run" / "checkpoints" / "last.ckpt").exists()
@@ -137,10 +157,22 @@ def test_prior_head_init_starts_at_the_training_codes_gaussian(decoder_dir, tiny
 def test_last_checkpoint_is_the_last_epoch_and_resume_continues_there(world, decoder_dir, tmp_path, tiny_encoder):
     """Lightning wrote last.ckpt only with a new best: with a best at epoch 0 it stayed at epoch 0."""
     run = tmp_path / "run"
-    trainer = {"accelerator": "cpu", "limit_train_batches": 1, "limit_val_batches": 1, "num_sanity_val_steps": 0,
-               "enable_progress_bar": False, "enable_model_summary": False}
-    kwargs = dict(encoder=tiny_encoder, loss=ES, module={"lr": 0.01, "val_samples": 8},
-                  data={"image_size": 16, "batch_size": 4}, logger=False, monitor="step")  # min step: epoch 0 is best
+    trainer = {
+        "accelerator": "cpu",
+        "limit_train_batches": 1,
+        "limit_val_batches": 1,
+        "num_sanity_val_steps": 0,
+        "enable_progress_bar": False,
+        "enable_model_summary": False,
+    }
+    kwargs = dict(
+        encoder=tiny_encoder,
+        loss=ES,
+        module={"lr": 0.01, "val_samples": 8},
+        data={"image_size": 16, "batch_size": 4},
+        logger=False,
+        monitor="step",
+    )  # min step: epoch 0 is best
     best = fit_encoder(world, decoder_dir, run, trainer={**trainer, "max_epochs": 2}, **kwargs)
     last = run / "checkpoints" / "last.ckpt"
     assert torch.load(best, map_location="cpu", weights_only=False)["epoch"] == 0

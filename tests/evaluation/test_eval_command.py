@@ -31,9 +31,20 @@ def test_eval_writes_tables_and_the_setting_row_for_a_real_run(sphere_world, tmp
     monkeypatch.setenv("USHAPE_ROOT", str(tmp_path))
     run_dir = fit_sphere_run(sphere_world, tmp_path)
     out = tmp_path / "eval"
-    cfg = _compose([f"runs=[{run_dir}]", f"cache_dir={tmp_path / 'cache'}", "tensorboard=false",
-                    "protocols=[single_view,uncertainty]", "protocol.resolution=24", "protocol.n_points=128",
-                    "protocol.sdf_points=100", "protocol.single_view_views=2", "fusion=bayesian_k", "fusion.k=3"])
+    cfg = _compose(
+        [
+            f"runs=[{run_dir}]",
+            f"cache_dir={tmp_path / 'cache'}",
+            "tensorboard=false",
+            "protocols=[single_view,uncertainty]",
+            "protocol.resolution=24",
+            "protocol.n_points=128",
+            "protocol.sdf_points=100",
+            "protocol.single_view_views=2",
+            "fusion=bayesian_k",
+            "fusion.k=3",
+        ]
+    )
     cfg.out_dir = str(out)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

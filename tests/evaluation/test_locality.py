@@ -69,7 +69,9 @@ def test_view_record_measures_a_shift_onto_the_cropped_away_part():
     assert record["crop_shift"] == pytest.approx(2.0)
     assert record["std_gain"] == pytest.approx(cropped.mean() / clean.mean())
     assert record["fused_hidden"] == pytest.approx(0.25) and record["fused_visible"] == pytest.approx(0.5)
-    assert record["error_crop_shift"] == pytest.approx(4.0) and record["error_hidden_over_visible"] == pytest.approx(1.0)
+    assert record["error_crop_shift"] == pytest.approx(4.0) and record["error_hidden_over_visible"] == pytest.approx(
+        1.0
+    )
     assert record["error_gain"] == pytest.approx(err_crop.mean())
 
 
@@ -78,20 +80,40 @@ def test_view_record_without_a_crop_has_no_crop_ratios():
     parts = ViewParts(hidden=np.arange(n) >= 3, kept=np.arange(n) < 3, away=np.zeros(n, bool))
     ones = (np.ones(n), np.ones(n))
     record = view_record(parts, ones, ones, np.ones(n))
-    assert record["away_over_kept_clean"] is None and record["crop_shift"] is None and record["error_crop_shift"] is None
+    assert (
+        record["away_over_kept_clean"] is None and record["crop_shift"] is None and record["error_crop_shift"] is None
+    )
     assert record["hidden_over_visible"] == pytest.approx(1.0)
 
 
 def _record(encoder, shift, n_away, hidden=1.0):
-    return {"encoder": encoder, "label": encoder.upper(), "min_scale": 0.1, "n_visible": 100, "n_away": n_away,
-            "hidden_over_visible": hidden, "away_over_kept_clean": 1.0, "away_over_kept_cropped": shift,
-            "crop_shift": shift, "error_crop_shift": 1.0, "error_hidden_over_visible": 1.0, "std_gain": 1.0,
-            "error_gain": 1.0, "fused_hidden": 0.3, "fused_visible": 0.3}
+    return {
+        "encoder": encoder,
+        "label": encoder.upper(),
+        "min_scale": 0.1,
+        "n_visible": 100,
+        "n_away": n_away,
+        "hidden_over_visible": hidden,
+        "away_over_kept_clean": 1.0,
+        "away_over_kept_cropped": shift,
+        "crop_shift": shift,
+        "error_crop_shift": 1.0,
+        "error_hidden_over_visible": 1.0,
+        "std_gain": 1.0,
+        "error_gain": 1.0,
+        "fused_hidden": 0.3,
+        "fused_visible": 0.3,
+    }
 
 
 def test_summary_takes_medians_and_counts_only_views_the_crop_really_cut():
-    records = [_record("es", 2.0, 50, hidden=2.0), _record("es", 3.0, 50), _record("es", 0.5, 50),
-               _record("es", 100.0, 1), _record("nll", 1.0, 0)]  # n_away 1 and 0: under 5% of the visible
+    records = [
+        _record("es", 2.0, 50, hidden=2.0),
+        _record("es", 3.0, 50),
+        _record("es", 0.5, 50),
+        _record("es", 100.0, 1),
+        _record("nll", 1.0, 0),
+    ]  # n_away 1 and 0: under 5% of the visible
     rows = {r["encoder"]: r for r in summarise_locality(records)}
     es = rows["es"]
     assert es["n_views"] == 4 and es["n_cropped_views"] == 3

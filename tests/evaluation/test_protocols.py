@@ -19,8 +19,12 @@ def _keys(n_shapes, n_views):
 
 def test_views_are_grouped_in_tens_per_shape_and_short_tails_dropped():
     groups = P.group_views(_keys(2, 25), 10)
-    assert [(g[0].shape_id, g[0].view, len(g)) for g in groups] == [("s0", 0, 10), ("s0", 10, 10),
-                                                                   ("s1", 0, 10), ("s1", 10, 10)]
+    assert [(g[0].shape_id, g[0].view, len(g)) for g in groups] == [
+        ("s0", 0, 10),
+        ("s0", 10, 10),
+        ("s1", 0, 10),
+        ("s1", 10, 10),
+    ]
 
 
 def test_a_shape_with_few_views_is_one_instance_with_a_warning():
@@ -72,9 +76,18 @@ def test_fusion_methods_of_a_deterministic_encoder_are_averaging_only():
 
 
 def test_summarise_averages_cd_over_non_empty_reconstructions():
-    base = {"encoder": "es", "label": "Ours", "protocol": "single", "min_scale": 1.0, "method": "single-view",
-            "views": 1, "shape_id": "a"}
-    rows = P.summarise([{**base, "item": "0", "iou": 0.5, "cd": 0.2}, {**base, "item": "1", "iou": 0.0, "cd": math.nan}])
+    base = {
+        "encoder": "es",
+        "label": "Ours",
+        "protocol": "single",
+        "min_scale": 1.0,
+        "method": "single-view",
+        "views": 1,
+        "shape_id": "a",
+    }
+    rows = P.summarise(
+        [{**base, "item": "0", "iou": 0.5, "cd": 0.2}, {**base, "item": "1", "iou": 0.0, "cd": math.nan}]
+    )
     assert rows[0]["iou"] == 0.25 and rows[0]["cd"] == 0.2 and rows[0]["empty"] == 1 and rows[0]["n"] == 2
 
 
@@ -125,7 +138,9 @@ def test_setting_row_warns_when_k_exceeds_the_views(sphere_world, sphere_codes, 
     assert out["records"] == []
 
 
-def test_evaluate_all_runs_the_uncertainty_analysis_with_the_equal_variance_baseline(sphere_world, sphere_codes, tmp_path):
+def test_evaluate_all_runs_the_uncertainty_analysis_with_the_equal_variance_baseline(
+    sphere_world, sphere_codes, tmp_path
+):
     settings = tiny_settings(protocols=("uncertainty",))
     runs = [make_run(sphere_world, sphere_codes, None, name, tmp_path, settings) for name in ("es", "l2")]
     with warnings.catch_warnings():

@@ -23,14 +23,28 @@ def test_grid_inside_test_interpolates_in_our_axis_order():
 
 def _cell(encoder, protocol, scale, method, iou, views=1):
     labels = {"es": "Ours", "nll": "Ours-NLL", "l2": "FroDO*"}
-    return {"encoder": encoder, "label": labels[encoder], "protocol": protocol, "min_scale": scale,
-            "method": method, "views": views, "n": 3, "iou": iou, "cd": 0.1, "emd": 0.2}
+    return {
+        "encoder": encoder,
+        "label": labels[encoder],
+        "protocol": protocol,
+        "min_scale": scale,
+        "method": method,
+        "views": views,
+        "n": 3,
+        "iou": iou,
+        "cd": 0.1,
+        "emd": 0.2,
+    }
 
 
 def test_table3_percentages_are_relative_to_frodo_single_and_average():
-    summary = [_cell("l2", "single", 1.0, "single-view", 0.40), _cell("l2", "multi", 1.0, "average", 0.50, 10),
-               _cell("es", "single", 1.0, "single-view", 0.44), _cell("es", "multi", 1.0, "bayesian-4", 0.55, 10),
-               _cell("es", "multi", 1.0, "bayesian", 0.45, 10)]
+    summary = [
+        _cell("l2", "single", 1.0, "single-view", 0.40),
+        _cell("l2", "multi", 1.0, "average", 0.50, 10),
+        _cell("es", "single", 1.0, "single-view", 0.44),
+        _cell("es", "multi", 1.0, "bayesian-4", 0.55, 10),
+        _cell("es", "multi", 1.0, "bayesian", 0.45, 10),
+    ]
     table = tables.table3(summary, 10)
     rows = {(r[0], r[2]): r for r in table.rows}
     assert rows[("Ours", "Single-view")][4] == pytest.approx(10.0)
@@ -51,19 +65,41 @@ def test_table4_columns_are_min_scales_and_missing_cells_are_dashes():
 
 def test_evaluation_writes_every_table_plot_and_row(evaluated_dir):
     names = {p.name for p in evaluated_dir.iterdir()}
-    assert {"results.json", "records.csv", "summary.csv", "tables.md", "table1.csv", "table3.csv", "table4.csv",
-            "table5.csv", "tables1.csv", "tabled.csv", "depth.csv", "eval_row.json", "tensorboard", "meshes",
-            "plots"} <= names
+    assert {
+        "results.json",
+        "records.csv",
+        "summary.csv",
+        "tables.md",
+        "table1.csv",
+        "table3.csv",
+        "table4.csv",
+        "table5.csv",
+        "tables1.csv",
+        "tabled.csv",
+        "depth.csv",
+        "eval_row.json",
+        "tensorboard",
+        "meshes",
+        "plots",
+    } <= names
     plots = {p.name for p in (evaluated_dir / "plots").iterdir()}
-    assert plots == {"calibration_latent.png", "calibration_sdf.png", "calibration_depth.png", "iou_vs_k.png",
-                     "iou_vs_min_scale.png"}
+    assert plots == {
+        "calibration_latent.png",
+        "calibration_sdf.png",
+        "calibration_depth.png",
+        "iou_vs_k.png",
+        "iou_vs_min_scale.png",
+    }
     assert list((evaluated_dir / "tensorboard").glob("events.out.tfevents.*"))
     assert len(list((evaluated_dir / "meshes").glob("*.png"))) == 6  # 3 encoders x (single, fused) x 1 shape
     text = (evaluated_dir / "results.json").read_text()
     json.loads(text, parse_constant=lambda c: pytest.fail(f"results.json holds {c}: not strict JSON"))
     rows = json.loads((evaluated_dir / "eval_row.json").read_text())
     assert [(r["label"], r["fusion"], r["min_scale"]) for r in rows] == [
-        ("Ours", "bayesian-2", 0.4), ("Ours-NLL", "bayesian-2", 0.4), ("FroDO*", "bayesian-2", 0.4)]
+        ("Ours", "bayesian-2", 0.4),
+        ("Ours-NLL", "bayesian-2", 0.4),
+        ("FroDO*", "bayesian-2", 0.4),
+    ]
 
 
 def test_table_s1_lists_the_equal_variance_baseline_first(evaluated_dir):

@@ -21,11 +21,17 @@ def _compose(overrides, config="train"):
         return compose(config, overrides=overrides)
 
 
-@pytest.mark.parametrize("override, named", [
-    ("crop.min_scale=0", "crop.min_scale=0"), ("crop.min_scale=1.5", "crop.min_scale=1.5"),
-    ("crop.min_scale=-1", "crop.min_scale=-1"), ("stage=foo", "stage='foo'"),
-    ("fusion=bayesian_k", None), ("stage2.max_epochs=0", "stage2.max_epochs=0"),
-])
+@pytest.mark.parametrize(
+    "override, named",
+    [
+        ("crop.min_scale=0", "crop.min_scale=0"),
+        ("crop.min_scale=1.5", "crop.min_scale=1.5"),
+        ("crop.min_scale=-1", "crop.min_scale=-1"),
+        ("stage=foo", "stage='foo'"),
+        ("fusion=bayesian_k", None),
+        ("stage2.max_epochs=0", "stage2.max_epochs=0"),
+    ],
+)
 def test_bad_values_are_named_before_anything_runs(override, named):
     """crop.min_scale=0 used to be rejected only at the first training batch, a minute in."""
     cfg = _compose([override])

@@ -21,22 +21,46 @@ import torch
 REPO = Path(__file__).resolve().parents[2]
 TINY = [
     "experiment=quickstart",
-    "data.n_train=3", "data.n_val=1", "data.n_test=1", "data.samples_per_shape=4000", "data.n_views=2",
-    "data.image_size=32", "data.mesh_resolution=64", "data.num_workers=0",
-    "stage1.module.val_every_n_epochs=1000", "stage1.module.val_mesh_resolution=16", "stage1.data.num_workers=0",
-    "stage1.data.shapes_per_batch=3", "stage1.data.samples_per_shape=256", "stage1.data.val_num_shapes=1",
-    "stage1.latent_optim.iterations=3", "stage1.latent_optim.samples_per_iter=256", "stage1.checkpoint_every_n_epochs=1",
-    "stage2.data.image_size=32", "stage2.data.batch_size=4", "stage2.data.num_workers=0",
-    "stage2.module.log_meshes=false", "stage2.module.val_samples=20", "encoder.backbone.pretrained=false",
-    "stage2.demo_meshes.resolution=16", "trainer.enable_progress_bar=false", "+trainer.enable_model_summary=false",
+    "data.n_train=3",
+    "data.n_val=1",
+    "data.n_test=1",
+    "data.samples_per_shape=4000",
+    "data.n_views=2",
+    "data.image_size=32",
+    "data.mesh_resolution=64",
+    "data.num_workers=0",
+    "stage1.module.val_every_n_epochs=1000",
+    "stage1.module.val_mesh_resolution=16",
+    "stage1.data.num_workers=0",
+    "stage1.data.shapes_per_batch=3",
+    "stage1.data.samples_per_shape=256",
+    "stage1.data.val_num_shapes=1",
+    "stage1.latent_optim.iterations=3",
+    "stage1.latent_optim.samples_per_iter=256",
+    "stage1.checkpoint_every_n_epochs=1",
+    "stage2.data.image_size=32",
+    "stage2.data.batch_size=4",
+    "stage2.data.num_workers=0",
+    "stage2.module.log_meshes=false",
+    "stage2.module.val_samples=20",
+    "encoder.backbone.pretrained=false",
+    "stage2.demo_meshes.resolution=16",
+    "trainer.enable_progress_bar=false",
+    "+trainer.enable_model_summary=false",
 ]
 TIMEOUT_S = 240
 
 
 def _train(root: Path, args: list[str], stop_when: str | None = None, signum: int = signal.SIGTERM):
     """Run train.py; once a file matching `stop_when` (a glob under root) exists, send `signum`."""
-    process = subprocess.Popen([sys.executable, *args], cwd=REPO, env={**os.environ, "USHAPE_ROOT": str(root)},
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen(
+        [sys.executable, *args],
+        cwd=REPO,
+        env={**os.environ, "USHAPE_ROOT": str(root)},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.monotonic() + TIMEOUT_S
     while stop_when and process.poll() is None and time.monotonic() < deadline:
         if glob.glob(str(root / stop_when)):
@@ -59,8 +83,11 @@ def _resume_args(output: str) -> list[str]:
 
 
 def test_sigterm_in_stage_1_exits_143_and_says_how_to_resume(tmp_path):
-    code, output = _train(tmp_path, ["train.py", "stage=decoder", "stage1.max_epochs=400", *TINY],
-                          stop_when="outputs/decoders/*/checkpoints/last.ckpt")
+    code, output = _train(
+        tmp_path,
+        ["train.py", "stage=decoder", "stage1.max_epochs=400", *TINY],
+        stop_when="outputs/decoders/*/checkpoints/last.ckpt",
+    )
     assert code == 128 + signal.SIGTERM, output[-3000:]
     assert "training stopped by SIGTERM" in output
     kept = re.search(r"kept: (\S+last\.ckpt) \(resumed from\)", output).group(1)
@@ -106,6 +133,8 @@ def test_the_resume_command_writes_into_the_same_folders():
     run = Path("/o/outputs/runs/d/t_encoder")
     assert resume_command(["train.py", "loss=nll"], run) == f"python train.py loss=nll hydra.run.dir={run}"
     job = Path("/o/outputs/multirun/d/t/1_chairs_nll")  # a sweep's jobs keep their numbered folders
-    assert resume_command(["train.py", "-m", "loss=es,nll"], job) == \
-        "python train.py -m loss=es,nll hydra.sweep.dir=/o/outputs/multirun/d/t"
+    assert (
+        resume_command(["train.py", "-m", "loss=es,nll"], job)
+        == "python train.py -m loss=es,nll hydra.sweep.dir=/o/outputs/multirun/d/t"
+    )
     assert resume_command(["train.py", "hydra.run.dir=x y"], run) == "python train.py 'hydra.run.dir=x y'"

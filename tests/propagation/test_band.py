@@ -30,8 +30,9 @@ def test_linearised_band_equals_the_dense_field_where_computed(gaussian):
     assert band.band[:-1, :-1, :-1][crossing].all()
     dense_mesh, band_mesh = marching_cubes(mean), marching_cubes(band.mean)
     assert len(band_mesh.vertices) == len(dense_mesh.vertices)
-    torch.testing.assert_close(torch.as_tensor(band_mesh.vertices), torch.as_tensor(dense_mesh.vertices),
-                               rtol=0, atol=1e-5)
+    torch.testing.assert_close(
+        torch.as_tensor(band_mesh.vertices), torch.as_tensor(dense_mesh.vertices), rtol=0, atol=1e-5
+    )
     # Far from the surface the variance is interpolated from a 17^3 grid: close, not equal.
     far = ~band.band
     relative = (band.variance[far] - variance[far]).abs() / variance[far].clamp_min(1e-12)
@@ -40,10 +41,12 @@ def test_linearised_band_equals_the_dense_field_where_computed(gaussian):
 
 def test_mc_band_variance_uses_the_same_codes_as_the_dense_mc_field(gaussian):
     decoder, (mu, var) = EllipsoidDecoder(), gaussian
-    band = narrow_band_field(decoder, mu, var, N, "mc", n_samples=8, generator=torch.Generator().manual_seed(3),
-                             coarse_resolution=13)
-    mean, variance = field_uncertainty(decoder, mu, var, N, "mc", n_samples=8,
-                                       generator=torch.Generator().manual_seed(3))
+    band = narrow_band_field(
+        decoder, mu, var, N, "mc", n_samples=8, generator=torch.Generator().manual_seed(3), coarse_resolution=13
+    )
+    mean, variance = field_uncertainty(
+        decoder, mu, var, N, "mc", n_samples=8, generator=torch.Generator().manual_seed(3)
+    )
     torch.testing.assert_close(band.variance[band.band], variance[band.band], rtol=1e-5, atol=1e-9)
     assert band.variance[band.band].max() > 1e-4  # the codes differ, so there is a variance to compare
 

@@ -23,7 +23,9 @@ def test_closed_form_equals_numeric_minimiser():
     mu, var, target = _validation(scale=2.5, n=500)
     closed = fit_temperature(mu, var, target)
     numeric = minimize_scalar(
-        lambda log_t: gaussian_nll_with_temperature(mu, var, target, math.exp(log_t)), bounds=(-5, 5), method="bounded",
+        lambda log_t: gaussian_nll_with_temperature(mu, var, target, math.exp(log_t)),
+        bounds=(-5, 5),
+        method="bounded",
         options={"xatol": 1e-10},
     )
     assert closed == pytest.approx(math.exp(numeric.x), rel=1e-5)

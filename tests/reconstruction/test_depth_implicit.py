@@ -139,8 +139,12 @@ def deepsdf_depths():
     pairs = []
     for azimuth in (0.0, 120.0):
         K, w2c = look_at(azimuth, 27.5, 2.8, R2N2_FOV_DEG, size)
-        pairs.append((depth_uncertainty_implicit(decoder, code, var, K, w2c, (size, size), eps=1e-4),
-                      depth_uncertainty(decoder, codes, K, w2c, (size, size), eps=1e-4)))
+        pairs.append(
+            (
+                depth_uncertainty_implicit(decoder, code, var, K, w2c, (size, size), eps=1e-4),
+                depth_uncertainty(decoder, codes, K, w2c, (size, size), eps=1e-4),
+            )
+        )
     return pairs
 
 
@@ -164,8 +168,12 @@ def test_implicit_agrees_with_mc_on_a_random_deepsdf_decoder(deepsdf_depths):
     wrong = std_agreement(implicit._replace(std=1.3 * implicit.std), mc)
     assert not 0.9 < wrong["median_ratio"] < 1.1
     order = torch.randperm(implicit.std.numel(), generator=torch.Generator().manual_seed(0))
-    shuffled = std_agreement(implicit._replace(std=implicit.std.flatten()[order].reshape(implicit.std.shape),
-                                               hit_rate=torch.ones_like(implicit.hit_rate)), mc)
+    shuffled = std_agreement(
+        implicit._replace(
+            std=implicit.std.flatten()[order].reshape(implicit.std.shape), hit_rate=torch.ones_like(implicit.hit_rate)
+        ),
+        mc,
+    )
     assert not shuffled["spearman"] > 0.9
 
 

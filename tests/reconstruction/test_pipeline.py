@@ -103,15 +103,34 @@ def test_cli_reports_skipped_images_and_bad_fusion(tiny_run, tmp_path, capsys, m
     (tiny_run["checkpoint"].parent / "temperature.json").unlink()
 
 
-def test_depth_method_mc_and_implicit_both_run_and_the_summary_says_which(tiny_run, sphere_predictor, tmp_path,
-                                                                          monkeypatch):
+def test_depth_method_mc_and_implicit_both_run_and_the_summary_says_which(
+    tiny_run, sphere_predictor, tmp_path, monkeypatch
+):
     views = sorted((tiny_run["world"] / "renders" / "test_0").glob("*.png"))[:2]
     monkeypatch.setattr("ushape.reconstruction.cli.load_predictor", lambda *args, **kwargs: sphere_predictor)
     summaries = {}
     for method in ("mc", "implicit"):
         out = tmp_path / method
-        assert main([*map(str, views), "--run", str(tiny_run["run"]), "--out", str(out), "--resolution", "24",
-                     "--depth-size", "12", "--depth-codes", "3", "--depth-method", method]) == 0
+        assert (
+            main(
+                [
+                    *map(str, views),
+                    "--run",
+                    str(tiny_run["run"]),
+                    "--out",
+                    str(out),
+                    "--resolution",
+                    "24",
+                    "--depth-size",
+                    "12",
+                    "--depth-codes",
+                    "3",
+                    "--depth-method",
+                    method,
+                ]
+            )
+            == 0
+        )
         summaries[method] = json.loads((out / "summary.json").read_text())
     for method, summary in summaries.items():
         assert summary["depth_method"] == summary["settings"]["depth_method"] == method
@@ -125,7 +144,12 @@ def test_depth_method_mc_and_implicit_both_run_and_the_summary_says_which(tiny_r
                     assert set(np.unique(depth["hit_rate"])) <= {0.0, 1.0}
     assert ReconstructionSettings().depth_method == "implicit"
     with pytest.raises(ValueError, match="depth_method must be one of"):
-        reconstruct(sphere_predictor, views, BayesianKFusion(k=2), tmp_path / "bad",
-                    ReconstructionSettings(resolution=24, depth_method="sampled"))
+        reconstruct(
+            sphere_predictor,
+            views,
+            BayesianKFusion(k=2),
+            tmp_path / "bad",
+            ReconstructionSettings(resolution=24, depth_method="sampled"),
+        )
     with pytest.raises(SystemExit):
         main([str(views[0]), "--depth-method", "sampled"])

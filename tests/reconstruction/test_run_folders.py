@@ -1,4 +1,4 @@
-"""Runs are self-contained and relocatable; damaged or missing checkpoints are named, never replaced by another run's."""
+"""Runs are self-contained and relocatable; damaged or missing checkpoints are named, never replaced by another's."""
 
 import json
 import shutil
@@ -25,9 +25,16 @@ def outputs_layout(tiny_run, tmp_path):
     blob = torch.load(checkpoint, weights_only=False)
     blob["hyper_parameters"]["decoder_path"] = str(outputs / "decoders" / "dec")
     torch.save(blob, checkpoint)
-    (run / "run.json").write_text(json.dumps({"stage": "encoder", "world": str(outputs / "data" / "world"),
-                                              "decoder_dir": str(outputs / "decoders" / "dec"),
-                                              "encoder_checkpoint": str(checkpoint)}))
+    (run / "run.json").write_text(
+        json.dumps(
+            {
+                "stage": "encoder",
+                "world": str(outputs / "data" / "world"),
+                "decoder_dir": str(outputs / "decoders" / "dec"),
+                "encoder_checkpoint": str(checkpoint),
+            }
+        )
+    )
     return root, run
 
 

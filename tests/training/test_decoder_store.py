@@ -18,8 +18,12 @@ def _cfg(tmp_path: Path, **over):
         {
             "seed": 1,
             "category": {"name": "chairs"},
-            "data": {"_target_": "ushape.data.world.SyntheticWorld", "n_train": 4, "num_workers": 0,
-                     "root": str(tmp_path / "data")},
+            "data": {
+                "_target_": "ushape.data.world.SyntheticWorld",
+                "n_train": 4,
+                "num_workers": 0,
+                "root": str(tmp_path / "data"),
+            },
             "decoder": {"_target_": "x", "hidden_dims": [8]},
             "stage1": {"epochs": 3},
             "paths": {"decoders_dir": str(tmp_path / "decoders")},
@@ -58,7 +62,9 @@ def test_reuse_and_identity(tmp_path):
     # The synthetic world's cache location does not change it; a real dataset's root does.
     assert decoder_dir_for(_cfg(tmp_path, data={"root": "/elsewhere"})) == first
     real = {"_target_": "ushape.data.real.shapenet_world.ShapeNetWorld", "root": "/data/a"}
-    assert decoder_dir_for(_cfg(tmp_path, data=real)) != decoder_dir_for(_cfg(tmp_path, data={**real, "root": "/data/b"}))
+    assert decoder_dir_for(_cfg(tmp_path, data=real)) != decoder_dir_for(
+        _cfg(tmp_path, data={**real, "root": "/data/b"})
+    )
 
 
 def test_unfinished_training_is_an_error_not_a_reusable_folder(tmp_path):

@@ -20,17 +20,37 @@ N_TRAIN, VIEWS, SHAPES_PER_BATCH, IMAGES_PER_BATCH, EPOCHS = 4, 2, 2, 2, 2
 
 TINY_DDP = [
     "experiment=quickstart",
-    f"data.n_train={N_TRAIN}", "data.n_val=1", "data.n_test=1", "data.samples_per_shape=3000",
-    f"data.n_views={VIEWS}", "data.image_size=32", "data.mesh_resolution=48", "data.num_workers=0",
-    f"stage1.max_epochs={EPOCHS}", "stage1.module.val_every_n_epochs=2", "stage1.module.val_mesh_resolution=16",
-    f"stage1.data.shapes_per_batch={SHAPES_PER_BATCH}", "stage1.data.samples_per_shape=256",
-    "stage1.data.val_num_shapes=2", "stage1.latent_optim.iterations=3", "stage1.latent_optim.samples_per_iter=256",
-    "stage2.max_epochs=1", "stage2.data.image_size=32", f"stage2.data.batch_size={IMAGES_PER_BATCH}",
-    "stage2.module.log_meshes=false", "stage2.module.val_samples=20", "stage2.demo_meshes.shapes=0",
+    f"data.n_train={N_TRAIN}",
+    "data.n_val=1",
+    "data.n_test=1",
+    "data.samples_per_shape=3000",
+    f"data.n_views={VIEWS}",
+    "data.image_size=32",
+    "data.mesh_resolution=48",
+    "data.num_workers=0",
+    f"stage1.max_epochs={EPOCHS}",
+    "stage1.module.val_every_n_epochs=2",
+    "stage1.module.val_mesh_resolution=16",
+    f"stage1.data.shapes_per_batch={SHAPES_PER_BATCH}",
+    "stage1.data.samples_per_shape=256",
+    "stage1.data.val_num_shapes=2",
+    "stage1.latent_optim.iterations=3",
+    "stage1.latent_optim.samples_per_iter=256",
+    "stage2.max_epochs=1",
+    "stage2.data.image_size=32",
+    f"stage2.data.batch_size={IMAGES_PER_BATCH}",
+    "stage2.module.log_meshes=false",
+    "stage2.module.val_samples=20",
+    "stage2.demo_meshes.shapes=0",
     "encoder.backbone.pretrained=false",
     # trainer=ddp on two CPU processes; SyncBatchNorm exists for GPUs only (torch refuses it on CPU).
-    "trainer=ddp", "trainer.accelerator=cpu", "trainer.devices=2", "trainer.precision=32-true",
-    "trainer.sync_batchnorm=false", "trainer.log_every_n_steps=1", "trainer.enable_progress_bar=false",
+    "trainer=ddp",
+    "trainer.accelerator=cpu",
+    "trainer.devices=2",
+    "trainer.precision=32-true",
+    "trainer.sync_batchnorm=false",
+    "trainer.log_every_n_steps=1",
+    "trainer.enable_progress_bar=false",
     "+trainer.enable_model_summary=false",
 ]
 
@@ -56,8 +76,9 @@ def test_both_stages_train_under_ddp_with_two_cpu_processes(tmp_path):
     env = {**os.environ, "USHAPE_ROOT": str(tmp_path)}
     for name in ("RANK", "LOCAL_RANK", "NODE_RANK", "WORLD_SIZE", "SLURM_PROCID"):
         env.pop(name, None)
-    result = subprocess.run([sys.executable, "train.py", *TINY_DDP], cwd=REPO, env=env, capture_output=True,
-                            text=True, timeout=600)
+    result = subprocess.run(
+        [sys.executable, "train.py", *TINY_DDP], cwd=REPO, env=env, capture_output=True, text=True, timeout=600
+    )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     runs = list((tmp_path / "outputs" / "runs").glob("*/*"))
     assert len(runs) == 1 and (runs[0] / "train_ddp_process_1.log").is_file()  # rank 1 ran in the same folder

@@ -8,23 +8,49 @@ from repo_commands import run_command
 
 TINY = [
     "experiment=quickstart",
-    "data.n_train=3", "data.n_val=1", "data.n_test=1", "data.samples_per_shape=4000", "data.n_views=2",
-    "data.image_size=32", "data.mesh_resolution=64", "data.num_workers=0",
-    "stage1.max_epochs=2", "stage1.module.val_every_n_epochs=2", "stage1.module.val_mesh_resolution=16",
-    "stage1.data.shapes_per_batch=3", "stage1.data.samples_per_shape=256", "stage1.data.val_num_shapes=1",
-    "stage1.latent_optim.iterations=3", "stage1.latent_optim.samples_per_iter=256",
-    "stage2.max_epochs=1", "stage2.data.image_size=32", "stage2.data.batch_size=4",
-    "stage2.module.log_meshes=false", "stage2.module.val_samples=20", "encoder.backbone.pretrained=false",
+    "data.n_train=3",
+    "data.n_val=1",
+    "data.n_test=1",
+    "data.samples_per_shape=4000",
+    "data.n_views=2",
+    "data.image_size=32",
+    "data.mesh_resolution=64",
+    "data.num_workers=0",
+    "stage1.max_epochs=2",
+    "stage1.module.val_every_n_epochs=2",
+    "stage1.module.val_mesh_resolution=16",
+    "stage1.data.shapes_per_batch=3",
+    "stage1.data.samples_per_shape=256",
+    "stage1.data.val_num_shapes=1",
+    "stage1.latent_optim.iterations=3",
+    "stage1.latent_optim.samples_per_iter=256",
+    "stage2.max_epochs=1",
+    "stage2.data.image_size=32",
+    "stage2.data.batch_size=4",
+    "stage2.module.log_meshes=false",
+    "stage2.module.val_samples=20",
+    "encoder.backbone.pretrained=false",
     "stage2.demo_meshes.resolution=24",
-    "trainer.enable_progress_bar=false", "+trainer.enable_model_summary=false",
+    "trainer.enable_progress_bar=false",
+    "+trainer.enable_model_summary=false",
 ]
 
 
 def test_sweep_over_losses_trains_one_decoder_and_two_encoders(tmp_path):
     """Both encoders in the PCA latent basis: the rebased stage-1 folder is also written once and shared.
     The optimizer, fusion and callbacks groups reach what they configure."""
-    result = run_command(tmp_path, "train.py", "-m", "loss=es,l2", "stage2.latent_basis=pca", *TINY,
-                         "optimizer=adamw", "fusion=bayesian_k", "fusion.k=1", "callbacks=early_stopping")
+    result = run_command(
+        tmp_path,
+        "train.py",
+        "-m",
+        "loss=es,l2",
+        "stage2.latent_basis=pca",
+        *TINY,
+        "optimizer=adamw",
+        "fusion=bayesian_k",
+        "fusion.k=1",
+        "callbacks=early_stopping",
+    )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     runs = sorted((tmp_path / "outputs" / "multirun").glob("*/*/*/run.json"))
     assert len(runs) == 2, runs
@@ -55,9 +81,18 @@ def test_sweep_over_losses_trains_one_decoder_and_two_encoders(tmp_path):
 def test_frozen_recipe_shares_its_recoded_codes_and_cached_features_across_a_sweep(tmp_path):
     """experiment=quickstart_frozen: training codes re-optimised once, view features encoded once, two encoders."""
     tiny = [a for a in TINY if a != "experiment=quickstart"]
-    result = run_command(tmp_path, "train.py", "-m", "experiment=quickstart_frozen", "loss=es,l2", *tiny,
-                         "stage2.data.train_passes=2", "encoder.hidden=16", "encoder.members=2",
-                         "stage2.demo_meshes.shapes=0")
+    result = run_command(
+        tmp_path,
+        "train.py",
+        "-m",
+        "experiment=quickstart_frozen",
+        "loss=es,l2",
+        *tiny,
+        "stage2.data.train_passes=2",
+        "encoder.hidden=16",
+        "encoder.members=2",
+        "stage2.demo_meshes.shapes=0",
+    )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     summaries = [json.loads(p.read_text()) for p in sorted((tmp_path / "outputs" / "multirun").glob("*/*/*/run.json"))]
     assert len(summaries) == 2

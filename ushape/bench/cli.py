@@ -32,13 +32,21 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--decoders", nargs="+", default=["small", "deepsdf"], help="conf/decoder/ names")
     parser.add_argument("--decoder-dir", default=None, help="trained decoder folder used for `small`")
     parser.add_argument("--repeats", type=int, default=1, help="repeats of each decoder-heavy row (median)")
-    parser.add_argument("--deepsdf-fraction", type=float, default=0.125,
-                        help="fraction of grid points timed for deepsdf's uncertainty fields (1: all)")
+    parser.add_argument(
+        "--deepsdf-fraction",
+        type=float,
+        default=0.125,
+        help="fraction of grid points timed for deepsdf's uncertainty fields (1: all)",
+    )
     parser.add_argument("--skip-slow", action="store_true", help="skip the Monte Carlo field rows")
-    parser.add_argument("--fit-steps", type=int, default=None,
-                        help="Adam steps fitting each untrained decoder to a procedural chair, so it has one "
-                             "surface as a trained decoder does (default 300; --quick 0: random weights); "
-                             f"cached under {DEFAULT_OUT_DIR}/fitted")
+    parser.add_argument(
+        "--fit-steps",
+        type=int,
+        default=None,
+        help="Adam steps fitting each untrained decoder to a procedural chair, so it has one "
+        "surface as a trained decoder does (default 300; --quick 0: random weights); "
+        f"cached under {DEFAULT_OUT_DIR}/fitted",
+    )
     parser.add_argument("--depth-views", type=int, default=12, help="views of the depth-uncertainty rows (0: none)")
     parser.add_argument("--out", default=None, help=f"report file (default {DEFAULT_OUT_DIR}/bench_<date>.md)")
     return parser
@@ -49,16 +57,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.deepsdf_fraction <= 0 or args.deepsdf_fraction > 1:
         raise SystemExit(f"--deepsdf-fraction must be in (0, 1], got {args.deepsdf_fraction}")
     resolution = args.resolution or (32 if args.quick else 128)
-    settings = BenchSettings(resolution=resolution, repeats=args.repeats, skip_slow=args.skip_slow,
-                             fusion_repeats=200 if args.quick else 2000, depth_views=args.depth_views,
-                             depth_size=16 if args.quick else 48)
+    settings = BenchSettings(
+        resolution=resolution,
+        repeats=args.repeats,
+        skip_slow=args.skip_slow,
+        fusion_repeats=200 if args.quick else 2000,
+        depth_views=args.depth_views,
+        depth_size=16 if args.quick else 48,
+    )
     fit_steps = args.fit_steps if args.fit_steps is not None else (0 if args.quick else 300)
     decoders = {name: (args.decoder_dir if name == "small" else None) for name in args.decoders}
     started = time.time()
-    shared, benches = run_bench(settings, decoders, {"deepsdf": args.deepsdf_fraction},
-                                encoders=(("efficientnet_lite0", 96),) if args.quick else
-                                (("efficientnet_lite0", 96), ("resnet50", 224)),
-                                fit_steps=fit_steps, cache_dir=DEFAULT_OUT_DIR / "fitted")
+    shared, benches = run_bench(
+        settings,
+        decoders,
+        {"deepsdf": args.deepsdf_fraction},
+        encoders=(("efficientnet_lite0", 96),) if args.quick else (("efficientnet_lite0", 96), ("resnet50", 224)),
+        fit_steps=fit_steps,
+        cache_dir=DEFAULT_OUT_DIR / "fitted",
+    )
     report = markdown_report(shared, benches, settings) + f"\nTotal bench time {time.time() - started:.0f} s.\n"
     out = Path(args.out) if args.out else DEFAULT_OUT_DIR / f"bench_{time.strftime('%Y-%m-%d')}.md"
     atomic.write_text(out, report)

@@ -51,8 +51,9 @@ class BenchSettings:
     depth_var: float = 0.001  # per-dimension latent variance of their Gaussian
 
 
-def bench_decoder(config_name: str, decoder_dir: str | Path | None = None, fit_steps: int = 0,
-                  cache_dir: str | Path | None = None) -> tuple[nn.Module, torch.Tensor, str]:
+def bench_decoder(
+    config_name: str, decoder_dir: str | Path | None = None, fit_steps: int = 0, cache_dir: str | Path | None = None
+) -> tuple[nn.Module, torch.Tensor, str]:
     """(decoder, code [D], where they came from) for conf/decoder/<config_name>.yaml or a trained folder."""
     if decoder_dir is not None:
         decoder = load_decoder(decoder_dir)
@@ -89,10 +90,15 @@ def fusion_rows(settings: BenchSettings, latent_size: int) -> list[Measurement]:
     mu = torch.randn(settings.fusion_views, latent_size, generator=g)
     var = torch.rand(settings.fusion_views, latent_size, generator=g) + 0.01
     rows = []
-    for name, fn in (("fusion bayesian", lambda: fuse_bayesian(mu, var)), ("fusion average", lambda: fuse_average(mu, var)),
-                     ("fusion bayesian-4", lambda: fuse_bayesian_k(mu, var, 4))):
+    for name, fn in (
+        ("fusion bayesian", lambda: fuse_bayesian(mu, var)),
+        ("fusion average", lambda: fuse_average(mu, var)),
+        ("fusion bayesian-4", lambda: fuse_bayesian_k(mu, var, 4)),
+    ):
         seconds, _ = timed(fn, settings.fusion_repeats, warmup=20)
-        rows.append(Measurement(name, seconds, settings.fusion_repeats, note=f"{settings.fusion_views} views, D={latent_size}"))
+        rows.append(
+            Measurement(name, seconds, settings.fusion_repeats, note=f"{settings.fusion_views} views, D={latent_size}")
+        )
     return rows
 
 
@@ -120,9 +126,15 @@ def _field_uncertainty_row(decoder, code, var, settings: BenchSettings, method: 
     label = f"field uncertainty {method}" + (f" M={settings.n_samples}" if method == "mc" else "")
     note = arithmetic_floor_note(decoder, code) if method == "linearised" else ""
     if fraction < 1.0:
-        return Measurement(label, seconds / fraction, settings.repeats, extrapolated_from=fraction, note=note,
-                           points=settings.resolution ** 3)
-    return Measurement(label, seconds, settings.repeats, note=note, points=settings.resolution ** 3)
+        return Measurement(
+            label,
+            seconds / fraction,
+            settings.repeats,
+            extrapolated_from=fraction,
+            note=note,
+            points=settings.resolution**3,
+        )
+    return Measurement(label, seconds, settings.repeats, note=note, points=settings.resolution**3)
 
 
 def arithmetic_floor_note(decoder: nn.Module, code: torch.Tensor) -> str:
@@ -150,10 +162,17 @@ def decoder_rows(decoder: nn.Module, code: torch.Tensor, settings: BenchSettings
         mc_s, mesh = timed(lambda: marching_cubes(grid), max(reps, 3))
         rows.append(Measurement("marching cubes", mc_s, max(reps, 3), note=f"{len(mesh.vertices)} vertices"))
         rows.append(Measurement("mesh dense (field + MC)", field_s + mc_s, reps, note="sum of the two rows above"))
-        c2f_s, (mesh, stats) = timed(lambda: extract_mesh(code_sdf_fn(decoder, code), n, "coarse_to_fine",
-                                                             coarse_resolution=min(32, n)), reps)
-        rows.append(Measurement("mesh coarse-to-fine", c2f_s, reps,
-                                note=f"{stats.evaluations} of {stats.dense_evaluations} points, {len(mesh.vertices)} vertices"))
+        c2f_s, (mesh, stats) = timed(
+            lambda: extract_mesh(code_sdf_fn(decoder, code), n, "coarse_to_fine", coarse_resolution=min(32, n)), reps
+        )
+        rows.append(
+            Measurement(
+                "mesh coarse-to-fine",
+                c2f_s,
+                reps,
+                note=f"{stats.evaluations} of {stats.dense_evaluations} points, {len(mesh.vertices)} vertices",
+            )
+        )
     vertices = torch.as_tensor(mesh.vertices, dtype=torch.float32)
     g = torch.Generator().manual_seed(settings.seed)
     for method in ("mc", "linearised"):
@@ -169,23 +188,39 @@ def decoder_rows(decoder: nn.Module, code: torch.Tensor, settings: BenchSettings
         # A fused multi-view posterior's spread, not the codes' prior one (0.01): first-order depth is
         # meant for a Gaussian whose samples land on the same parts of the object.
         depth_var = torch.full_like(code, settings.depth_var)
-        rows += depth_rows(decoder, code, depth_var, settings.depth_views, settings.depth_size, settings.n_samples,
-                           seed=settings.seed, repeats=reps)
+        rows += depth_rows(
+            decoder,
+            code,
+            depth_var,
+            settings.depth_views,
+            settings.depth_size,
+            settings.n_samples,
+            seed=settings.seed,
+            repeats=reps,
+        )
     return rows
 
 
-def narrow_band_rows(decoder: nn.Module, code: torch.Tensor, var: torch.Tensor,
-                     settings: BenchSettings) -> list[Measurement]:
+def narrow_band_rows(
+    decoder: nn.Module, code: torch.Tensor, var: torch.Tensor, settings: BenchSettings
+) -> list[Measurement]:
     """SDF mean and variance on the N^3 grid with the variance only in the narrow band, both methods."""
     rows = []
     for method in ("linearised", "mc"):
         g = torch.Generator().manual_seed(settings.seed)
-        seconds, band = timed(lambda: narrow_band_field(decoder, code, var, settings.resolution, method,
-                                                        settings.n_samples, g), settings.repeats)
+        seconds, band = timed(
+            lambda: narrow_band_field(decoder, code, var, settings.resolution, method, settings.n_samples, g),
+            settings.repeats,
+        )
         label = f"field uncertainty {method}" + (f" M={settings.n_samples}" if method == "mc" else "")
-        rows.append(Measurement(f"{label} narrow band", seconds, settings.repeats,
-                                note=f"mean at {band.evaluations}, variance at {band.band_points} of "
-                                     f"{settings.resolution ** 3} points"))
+        rows.append(
+            Measurement(
+                f"{label} narrow band",
+                seconds,
+                settings.repeats,
+                note=f"mean at {band.evaluations}, variance at {band.band_points} of {settings.resolution**3} points",
+            )
+        )
     return rows
 
 

@@ -32,8 +32,10 @@ def orbit_cameras(views: int, size: int) -> list[tuple]:
     if isinstance(views, bool) or not isinstance(views, int) or views < 1:
         raise ValueError(f"views must be a positive integer, got {views!r}")
     c = CANONICAL_CAMERA
-    return [look_at(c["azimuth_deg"] + 360.0 * v / views, c["elevation_deg"], c["distance"], c["fov_deg"], size)
-            for v in range(views)]
+    return [
+        look_at(c["azimuth_deg"] + 360.0 * v / views, c["elevation_deg"], c["distance"], c["fov_deg"], size)
+        for v in range(views)
+    ]
 
 
 def pooled_stats(stats: list[DepthStats]) -> DepthStats:
@@ -59,8 +61,10 @@ def depth_rows(
     also with an untimed Monte Carlo run of that many codes (whose own sampling error is small).
     """
     if n_codes < 2 or (reference_codes is not None and reference_codes < 2):
-        raise ValueError(f"n_codes and reference_codes must be at least 2 for a Monte Carlo std, "
-                         f"got {n_codes!r} and {reference_codes!r}")
+        raise ValueError(
+            f"n_codes and reference_codes must be at least 2 for a Monte Carlo std, "
+            f"got {n_codes!r} and {reference_codes!r}"
+        )
     cameras = orbit_cameras(views, size)
     hw = (size, size)
 
@@ -78,19 +82,29 @@ def depth_rows(
     mc_s, mc_stats = timed(mc, repeats)
     implicit_s, implicit_stats = timed(implicit, repeats)
     hits = int(sum(int((s.hit_rate > 0).sum()) for s in implicit_stats))
-    note = f"{size}px, {hits} pixels hit; {mc_s / implicit_s:.1f}x faster than MC M={n_codes}; std vs " + \
-        agreement_note(implicit_stats, mc_stats, n_codes)
+    note = (
+        f"{size}px, {hits} pixels hit; {mc_s / implicit_s:.1f}x faster than MC M={n_codes}; std vs "
+        + agreement_note(implicit_stats, mc_stats, n_codes)
+    )
     if reference_codes is not None:
         note += "; vs " + agreement_note(implicit_stats, mc(reference_codes), reference_codes)
     label = f"({views} views)"
-    return [Measurement(f"depth uncertainty mc M={n_codes} {label}", mc_s, repeats,
-                        note=f"{size}px, {steps} steps, one code set for all views"),
-            Measurement(f"depth uncertainty implicit {label}", implicit_s, repeats, note=note)]
+    return [
+        Measurement(
+            f"depth uncertainty mc M={n_codes} {label}",
+            mc_s,
+            repeats,
+            note=f"{size}px, {steps} steps, one code set for all views",
+        ),
+        Measurement(f"depth uncertainty implicit {label}", implicit_s, repeats, note=note),
+    ]
 
 
 def agreement_note(implicit: list[DepthStats], mc: list[DepthStats], n_codes: int) -> str:
-    """"MC M=10 over the N pixels every code hit: median ratio ..., Pearson ..., Spearman ... (...)"."""
+    """ "MC M=10 over the N pixels every code hit: median ratio ..., Pearson ..., Spearman ... (...)"."""
     agreement = std_agreement(pooled_stats(implicit), pooled_stats(mc))
-    return (f"MC M={n_codes} over the {agreement['pixels']} pixels every code hit: median ratio "
-            f"{agreement['median_ratio']:.3f}, Pearson {agreement['pearson']:.3f}, Spearman "
-            f"{agreement['spearman']:.3f} (MC's own std error ~{1 / math.sqrt(2 * (n_codes - 1)):.0%})")
+    return (
+        f"MC M={n_codes} over the {agreement['pixels']} pixels every code hit: median ratio "
+        f"{agreement['median_ratio']:.3f}, Pearson {agreement['pearson']:.3f}, Spearman "
+        f"{agreement['spearman']:.3f} (MC's own std error ~{1 / math.sqrt(2 * (n_codes - 1)):.0%})"
+    )

@@ -34,8 +34,9 @@ def chair_samples(seed: int, n_points: int = 200_000) -> tuple[torch.Tensor, tor
     return rows[:, :3].contiguous(), rows[:, 3].contiguous()
 
 
-def fit_decoder(decoder: nn.Module, code: torch.Tensor, steps: int, seed: int = 0, batch: int = 8192,
-                lr: float = 1e-3) -> float:
+def fit_decoder(
+    decoder: nn.Module, code: torch.Tensor, steps: int, seed: int = 0, batch: int = 8192, lr: float = 1e-3
+) -> float:
     """Fit the decoder's weights (code fixed) to chair `seed` for `steps` Adam steps; returns the last L1 loss."""
     points, sdf = chair_samples(seed)
     generator = torch.Generator().manual_seed(seed)
@@ -58,8 +59,9 @@ def fit_decoder(decoder: nn.Module, code: torch.Tensor, steps: int, seed: int = 
     return float(loss.detach())
 
 
-def fitted_decoder(config: DictConfig, code: torch.Tensor, steps: int, cache_dir: Path | None,
-                   seed: int = 0) -> tuple[nn.Module, str]:
+def fitted_decoder(
+    config: DictConfig, code: torch.Tensor, steps: int, cache_dir: Path | None, seed: int = 0
+) -> tuple[nn.Module, str]:
     """(decoder of `config` fitted to chair `seed` for `steps` steps, provenance), from the cache when there."""
     torch.manual_seed(seed)
     decoder = instantiate(config)

@@ -31,8 +31,10 @@ def with_derived_rows(bench: DecoderBench) -> list[Measurement]:
     """The measured rows plus mesh-with-uncertainty sums (coarse-to-fine mesh + vertex std)."""
     rows = list(bench.rows)
     c2f = bench.seconds("mesh coarse-to-fine")
-    for label, prefix in ((MESH_WITH_UNCERTAINTY, "vertex uncertainty linearised"),
-                          (MESH_WITH_UNCERTAINTY_MC, "vertex uncertainty mc")):
+    for label, prefix in (
+        (MESH_WITH_UNCERTAINTY, "vertex uncertainty linearised"),
+        (MESH_WITH_UNCERTAINTY_MC, "vertex uncertainty mc"),
+    ):
         extra = bench.seconds(prefix)
         if c2f is not None and extra is not None:
             rows.append(Measurement(label, c2f + extra, note="sum of its two rows"))
@@ -80,10 +82,21 @@ def ratio_rows(bench: DecoderBench) -> list[tuple[str, float | None, str, bool |
     lin = _ratio(_dense(bench, "field uncertainty linearised"), field)
     mc = _ratio(_dense(bench, "field uncertainty mc"), field)
     band_lin = _ratio(bench.seconds("field uncertainty linearised narrow band"), field)
-    band_mc = _ratio(next((r.seconds for r in bench.rows if r.name.startswith("field uncertainty mc")
-                           and r.name.endswith("narrow band")), None), field)
+    band_mc = _ratio(
+        next(
+            (
+                r.seconds
+                for r in bench.rows
+                if r.name.startswith("field uncertainty mc") and r.name.endswith("narrow band")
+            ),
+            None,
+        ),
+        field,
+    )
     depth_speedup = _ratio(bench.seconds("depth uncertainty mc"), bench.seconds("depth uncertainty implicit"))
-    per_vertex = _ratio(_per_point(bench, "vertex uncertainty linearised"), _per_point(bench, "field uncertainty linearised"))
+    per_vertex = _ratio(
+        _per_point(bench, "vertex uncertainty linearised"), _per_point(bench, "field uncertainty linearised")
+    )
     mesh_lin = _ratio(_total(bench, "mesh coarse-to-fine", "vertex uncertainty linearised"), mesh)
     mesh_mc = _ratio(_total(bench, "mesh coarse-to-fine", "vertex uncertainty mc"), mesh)
     bf16 = next((r.seconds for r in bench.rows if r.name.startswith("decoder field") and "bf16" in r.name), None)
@@ -95,15 +108,33 @@ def ratio_rows(bench: DecoderBench) -> list[tuple[str, float | None, str, bool |
         ("coarse-to-fine mesh / dense mesh", _ratio(mesh, bench.seconds("mesh dense")), "(lower is better)", None),
         ("field w/ unc (linearised) / field", lin, f"<= {FIELD_TARGET:g}x", check(lin, FIELD_TARGET)),
         ("field w/ unc (MC M=10) / field", mc, "(the paper: 9.9x)", None),
-        ("narrow-band field w/ unc (linearised) / field", band_lin, f"<= {BAND_TARGET:g}x",
-         check(band_lin, BAND_TARGET)),
+        (
+            "narrow-band field w/ unc (linearised) / field",
+            band_lin,
+            f"<= {BAND_TARGET:g}x",
+            check(band_lin, BAND_TARGET),
+        ),
         ("narrow-band field w/ unc (MC M=10) / field", band_mc, "(lower is better)", None),
-        ("mesh w/ unc (linearised) / mesh, coarse-to-fine", mesh_lin, f"<= {MESH_TARGET:.2f}x", check(mesh_lin, MESH_TARGET)),
-        ("mesh w/ unc (MC M=10) / mesh, coarse-to-fine", mesh_mc, f"<= {MESH_TARGET:.2f}x", check(mesh_mc, MESH_TARGET)),
+        (
+            "mesh w/ unc (linearised) / mesh, coarse-to-fine",
+            mesh_lin,
+            f"<= {MESH_TARGET:.2f}x",
+            check(mesh_lin, MESH_TARGET),
+        ),
+        (
+            "mesh w/ unc (MC M=10) / mesh, coarse-to-fine",
+            mesh_mc,
+            f"<= {MESH_TARGET:.2f}x",
+            check(mesh_mc, MESH_TARGET),
+        ),
         ("field bf16 / field fp32", _ratio(bf16, field), "(< 1: bf16 faster)", None),
         ("vertex linearised per vertex / field linearised per point", per_vertex, "(1: at the per-point floor)", None),
-        ("depth unc MC M=10 / implicit (speed-up)", depth_speedup, f">= {DEPTH_SPEEDUP_TARGET:g}x",
-         None if depth_speedup is None else depth_speedup >= DEPTH_SPEEDUP_TARGET),
+        (
+            "depth unc MC M=10 / implicit (speed-up)",
+            depth_speedup,
+            f">= {DEPTH_SPEEDUP_TARGET:g}x",
+            None if depth_speedup is None else depth_speedup >= DEPTH_SPEEDUP_TARGET,
+        ),
     ]
 
 
@@ -136,8 +167,11 @@ def markdown_report(shared: Sequence[Measurement], benches: Sequence[DecoderBenc
     ]
     for bench in benches:
         lines.append(f"- decoder `{bench.name}`: {bench.parameters:,} parameters, {bench.provenance}")
-    lines += ["", "| step | " + " | ".join(f"{b.name}" for b in benches) + " | paper A100 (8x512) | notes |",
-              "|---|" + "---|" * len(benches) + "---|---|"]
+    lines += [
+        "",
+        "| step | " + " | ".join(f"{b.name}" for b in benches) + " | paper A100 (8x512) | notes |",
+        "|---|" + "---|" * len(benches) + "---|---|",
+    ]
     tables = [with_derived_rows(b) for b in benches]
     names = list(dict.fromkeys(r.name for rows in tables for r in rows))
     for name in names:

@@ -158,8 +158,14 @@ def metadata_to_cameras(
     Ks, extrinsics = [], []
     for az, el, inplane, ratio, row_fov in rows:
         K, w2c = look_at(
-            az, el, ratio * max_distance / r2n2_scale, row_fov if fov_deg is None else fov_deg,
-            image_size, inplane_deg=inplane, target=r2n2_centre, frame=frame,
+            az,
+            el,
+            ratio * max_distance / r2n2_scale,
+            row_fov if fov_deg is None else fov_deg,
+            image_size,
+            inplane_deg=inplane,
+            target=r2n2_centre,
+            frame=frame,
         )
         Ks.append(K)
         extrinsics.append(w2c)

@@ -33,6 +33,7 @@ LINE_HEIGHT = 12
 
 def style_label(shape_id: str, style: dict[str, Any], chars_per_line: int) -> list[str]:
     """Up to LABEL_LINES lines: the shape id, then its style as compact key=value pairs."""
+
     def fmt(value: Any) -> str:
         if isinstance(value, float):
             return f"{value:.2f}"
@@ -68,7 +69,12 @@ def compose_gallery(cells: Sequence[tuple[list[np.ndarray], list[str]]], columns
 
 
 def cells_from_shapes(
-    category: str, n: int, n_views: int, image_size: int, mesh_resolution: int, seed: int,
+    category: str,
+    n: int,
+    n_views: int,
+    image_size: int,
+    mesh_resolution: int,
+    seed: int,
     factory: Optional[ShapeFactory] = None,
 ) -> list[tuple[list[np.ndarray], list[str]]]:
     """Gallery cells of n freshly generated shapes, rendered with R2N2-protocol cameras."""
@@ -121,9 +127,17 @@ def main(argv: Optional[Sequence[str]] = None) -> Path:
         parser.error("--n must be at least 1")
     if args.root:
         index = SyntheticWorld(
-            args.category, args.root, args.n_train or args.n, args.n_val, args.n_test, seed=args.seed,
-            samples_per_shape=args.samples_per_shape, n_views=args.n_views, image_size=args.image_size,
-            mesh_resolution=args.mesh_resolution, num_workers=args.num_workers,
+            args.category,
+            args.root,
+            args.n_train or args.n,
+            args.n_val,
+            args.n_test,
+            seed=args.seed,
+            samples_per_shape=args.samples_per_shape,
+            n_views=args.n_views,
+            image_size=args.image_size,
+            mesh_resolution=args.mesh_resolution,
+            num_workers=args.num_workers,
         ).build()
         cells = cells_from_world(index, args.n, args.views)
     else:

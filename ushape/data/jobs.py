@@ -11,7 +11,9 @@ Job = TypeVar("Job")
 Result = TypeVar("Result")
 
 
-def run_jobs(fn: Callable[[Job], Result], jobs: Sequence[Job], num_workers: int, desc: str, unit: str) -> Iterator[Result]:
+def run_jobs(
+    fn: Callable[[Job], Result], jobs: Sequence[Job], num_workers: int, desc: str, unit: str
+) -> Iterator[Result]:
     """fn over jobs, results as they finish (any order with workers); num_workers <= 0: in this process."""
     progress = dict(total=len(jobs), desc=desc, unit=unit)
     if num_workers <= 0:

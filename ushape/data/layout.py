@@ -1,16 +1,16 @@
 """Where every file of a cached synthetic world lives (every name is defined here, nowhere else).
 
-    <root>/<category>-<hash12>/
-      config.json                          the generating config (hash12 is its hash); worlds whose shapes
-                                           have different numbers of views list them in views_per_shape
-      splits/train.json, val.json, test.json   JSON lists of shape ids
-      meshes/<shape_id>.ply                normalised watertight mesh
-      sdf/<shape_id>.npz                   pos [P,4], neg [Q,4] float32 (DeepSDF layout)
-      renders/<shape_id>/00.png .. NN.png  RGBA, transparent background
-      renders/<shape_id>/rendering_metadata.txt   "az el inplane dist_ratio fov" per view
-      renders/<shape_id>/views.npz         K [V,3,3], world_to_cam [V,4,4], masks [V,H,W] bool,
-                                           depth [V,H,W] float32, r2n2_centre [3], r2n2_scale []
-      shapes/<shape_id>.json               the shape's style dict + seed
+<root>/<category>-<hash12>/
+  config.json                          the generating config (hash12 is its hash); worlds whose shapes
+                                       have different numbers of views list them in views_per_shape
+  splits/train.json, val.json, test.json   JSON lists of shape ids
+  meshes/<shape_id>.ply                normalised watertight mesh
+  sdf/<shape_id>.npz                   pos [P,4], neg [Q,4] float32 (DeepSDF layout)
+  renders/<shape_id>/00.png .. NN.png  RGBA, transparent background
+  renders/<shape_id>/rendering_metadata.txt   "az el inplane dist_ratio fov" per view
+  renders/<shape_id>/views.npz         K [V,3,3], world_to_cam [V,4,4], masks [V,H,W] bool,
+                                       depth [V,H,W] float32, r2n2_centre [3], r2n2_scale []
+  shapes/<shape_id>.json               the shape's style dict + seed
 """
 
 from __future__ import annotations
@@ -123,8 +123,9 @@ def read_split(root: str | Path, split: str) -> list[str]:
     path = root / SPLITS_DIR / f"{split}.json"
     ids = _read_json(path, root)
     if not isinstance(ids, list) or not all(isinstance(i, str) for i in ids):
-        raise ValueError(f"{path} must hold a JSON list of shape id strings; rebuild the world with "
-                         "SyntheticWorld(...).build()")
+        raise ValueError(
+            f"{path} must hold a JSON list of shape id strings; rebuild the world with SyntheticWorld(...).build()"
+        )
     return ids
 
 

@@ -48,8 +48,9 @@ class RayCaster:
         if len(mesh.faces) == 0:
             raise ValueError("cannot render a mesh with no faces")
         if not trimesh.ray.has_embree:
-            raise ImportError("ray casting needs embreex (a ushape dependency, fast BVH ray queries): "
-                              "pip install embreex")
+            raise ImportError(
+                "ray casting needs embreex (a ushape dependency, fast BVH ray queries): pip install embreex"
+            )
         self.mesh = mesh
         faces = np.asarray(mesh.faces, np.int64)
         vertices = np.asarray(mesh.vertices, np.float64)
@@ -63,13 +64,17 @@ class RayCaster:
         self._offset = vertices.min(axis=0)
         self._scale = 100.0 / max(float(np.ptp(vertices, axis=0).max()), 1e-12)
         self._scene = rtcore_scene.EmbreeScene()
-        TriangleMesh(scene=self._scene, vertices=((vertices - self._offset) * self._scale).astype(np.float32),
-                     indices=faces.astype(np.int32))
+        TriangleMesh(
+            scene=self._scene,
+            vertices=((vertices - self._offset) * self._scale).astype(np.float32),
+            indices=faces.astype(np.int32),
+        )
 
     def first_hits(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(ray index [M], face index [M], barycentric weights [M,3]) of the rays that hit."""
-        out = self._scene.run(((origins - self._offset) * self._scale).astype(np.float32),
-                              directions.astype(np.float32), output=1)
+        out = self._scene.run(
+            ((origins - self._offset) * self._scale).astype(np.float32), directions.astype(np.float32), output=1
+        )
         ray = np.flatnonzero(out["primID"] >= 0)
         u, v = out["u"][ray].astype(np.float64), out["v"][ray].astype(np.float64)
         return ray, out["primID"][ray].astype(np.int64), np.stack([1.0 - u - v, u, v], axis=1)

@@ -85,7 +85,9 @@ def _as_sdf_fn(shape_or_sdf_fn: Union[SdfFn, object]) -> SdfFn:
     )
 
 
-def area_weighted_surface_points(mesh: trimesh.Trimesh, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def area_weighted_surface_points(
+    mesh: trimesh.Trimesh, n: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
     """Uniform points on the mesh surface [n,3] and the face each lies on [n] (faces chosen by area)."""
     areas = mesh.area_faces
     face = rng.choice(len(areas), size=n, p=areas / areas.sum())

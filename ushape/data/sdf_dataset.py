@@ -33,8 +33,9 @@ def load_sdf_samples(path: str | Path) -> tuple[Tensor, Tensor]:
         raise ValueError(f"SDF sample file {path} is corrupt or incomplete ({err}); {REBUILD_HINT}") from err
     for name, arr in (("pos", pos), ("neg", neg)):
         if arr.ndim != 2 or arr.shape[1] != 4 or arr.shape[0] == 0:
-            raise ValueError(f"SDF sample file {path}: {name!r} must be a non-empty [N, 4] array, "
-                             f"got {arr.shape}; {REBUILD_HINT}")
+            raise ValueError(
+                f"SDF sample file {path}: {name!r} must be a non-empty [N, 4] array, got {arr.shape}; {REBUILD_HINT}"
+            )
     return torch.from_numpy(pos), torch.from_numpy(neg)
 
 

@@ -84,7 +84,9 @@ def part_colour_fn(shape: object, grain_strength: float = 0.12) -> ColourFn:
     def colour(points: np.ndarray, face_index: np.ndarray) -> np.ndarray:
         part = np.asarray(shape.part_index(points)).astype(np.int64)
         if part.size and (part.min() < 0 or part.max() >= len(colours)):
-            raise ValueError(f"part_index returned {part.min()}..{part.max()} but there are {len(colours)} part colours")
+            raise ValueError(
+                f"part_index returned {part.min()}..{part.max()} but there are {len(colours)} part colours"
+            )
         return colours[part] * wood_grain(points, part, grain_strength)[:, None]
 
     return colour

@@ -55,14 +55,34 @@ def artifact_problems(index: WorldIndex, shape_id: str) -> dict[str, tuple[str, 
     checks: dict[str, list[tuple[Any, Callable[[], Optional[str]]]]] = {
         "shape": [(index.shape_path(shape_id), lambda: integrity.check_json(index.shape_path(shape_id)))],
         "mesh": [(index.mesh_path(shape_id), lambda: integrity.check_ply(index.mesh_path(shape_id)))],
-        "sdf": [(index.sdf_path(shape_id), lambda: integrity.check_npz(
-            index.sdf_path(shape_id), {"pos": (None, 4), "neg": (None, 4)}, {"pos": "float32", "neg": "float32"}))],
+        "sdf": [
+            (
+                index.sdf_path(shape_id),
+                lambda: integrity.check_npz(
+                    index.sdf_path(shape_id), {"pos": (None, 4), "neg": (None, 4)}, {"pos": "float32", "neg": "float32"}
+                ),
+            )
+        ],
         "renders": [
-            (index.metadata_path(shape_id), lambda: integrity.check_text_rows(index.metadata_path(shape_id), n_views, 5)),
-            (index.views_path(shape_id), lambda: integrity.check_npz(index.views_path(shape_id), {
-                "K": (n_views, 3, 3), "world_to_cam": (n_views, 4, 4),
-                "masks": (n_views, *hw), "depth": (n_views, *hw)}, {"masks": "bool", "depth": "float32"})),
-        ] + [(p, lambda p=p: integrity.check_png(p, hw)) for p in index.image_paths(shape_id)],
+            (
+                index.metadata_path(shape_id),
+                lambda: integrity.check_text_rows(index.metadata_path(shape_id), n_views, 5),
+            ),
+            (
+                index.views_path(shape_id),
+                lambda: integrity.check_npz(
+                    index.views_path(shape_id),
+                    {
+                        "K": (n_views, 3, 3),
+                        "world_to_cam": (n_views, 4, 4),
+                        "masks": (n_views, *hw),
+                        "depth": (n_views, *hw),
+                    },
+                    {"masks": "bool", "depth": "float32"},
+                ),
+            ),
+        ]
+        + [(p, lambda p=p: integrity.check_png(p, hw)) for p in index.image_paths(shape_id)],
     }
     problems = {}
     for artifact, artifact_checks in checks.items():
@@ -83,8 +103,10 @@ def build_shape(job: ShapeJob) -> ShapeResult:
     result.corrupt = [pr for pr in problems.values() if pr[1] != integrity.MISSING]
     shape = job.factory(index.category, job.seed)
     if shape.shape_id != job.shape_id:
-        raise RuntimeError(f"shape factory gave id {shape.shape_id!r} for seed {job.seed}, but the split lists "
-                           f"{job.shape_id!r}: the generator changed; bump GENERATOR_VERSION in ushape.data.world")
+        raise RuntimeError(
+            f"shape factory gave id {shape.shape_id!r} for seed {job.seed}, but the split lists "
+            f"{job.shape_id!r}: the generator changed; bump GENERATOR_VERSION in ushape.data.world"
+        )
     if "shape" in problems:
         atomic.write_json(index.shape_path(job.shape_id), _shape_record(shape, job))
     if "mesh" in problems:
@@ -125,9 +147,12 @@ def write_renders(index: WorldIndex, job: ShapeJob, shape: Any, mesh: trimesh.Tr
     atomic.write_text(index.metadata_path(job.shape_id), text)
     atomic.save_npz(
         index.views_path(job.shape_id),
-        K=Ks.astype(np.float32), world_to_cam=world_to_cams.astype(np.float32),
-        masks=views["mask"], depth=views["depth"].astype(np.float32),
-        r2n2_centre=centre.astype(np.float32), r2n2_scale=np.float32(scale),
+        K=Ks.astype(np.float32),
+        world_to_cam=world_to_cams.astype(np.float32),
+        masks=views["mask"],
+        depth=views["depth"].astype(np.float32),
+        r2n2_centre=centre.astype(np.float32),
+        r2n2_scale=np.float32(scale),
     )
 
 

@@ -69,8 +69,12 @@ class SyntheticWorld:
         counts = {"train": n_train, "val": n_val, "test": n_test}
         if any(int(n) < 0 for n in counts.values()) or n_train < 1:
             raise ValueError(f"need n_train >= 1 and n_val, n_test >= 0, got {counts}")
-        for name, value in (("samples_per_shape", samples_per_shape), ("n_views", n_views),
-                            ("image_size", image_size), ("mesh_resolution", mesh_resolution)):
+        for name, value in (
+            ("samples_per_shape", samples_per_shape),
+            ("n_views", n_views),
+            ("image_size", image_size),
+            ("mesh_resolution", mesh_resolution),
+        ):
             if int(value) < 1:
                 raise ValueError(f"{name} must be positive, got {value}")
         self.factory = shape_factory or default_shape_factory(category)
@@ -79,7 +83,9 @@ class SyntheticWorld:
         self.num_workers = int(num_workers)
         self.config: dict[str, Any] = {
             "category": category,
-            "n_train": self.counts["train"], "n_val": self.counts["val"], "n_test": self.counts["test"],
+            "n_train": self.counts["train"],
+            "n_val": self.counts["val"],
+            "n_test": self.counts["test"],
             "seed": int(seed),
             "samples_per_shape": int(samples_per_shape),
             "n_views": int(n_views),
@@ -126,14 +132,22 @@ class SyntheticWorld:
         if len(set(all_ids)) != len(all_ids):
             raise RuntimeError(f"splits of {self.directory} share shape ids; delete its splits/ folder to regenerate")
         index = WorldIndex(root=self.directory, category=index.category, splits=splits, config=self.config)
-        jobs = [ShapeJob(index, split, i, seeds[split][i], sid, self.factory)
-                for split in SPLITS for i, sid in enumerate(splits[split])]
+        jobs = [
+            ShapeJob(index, split, i, seeds[split][i], sid, self.factory)
+            for split in SPLITS
+            for i, sid in enumerate(splits[split])
+        ]
         for result in self._run(jobs):
             for path, reason in result.corrupt:
                 warnings.warn(f"corrupt cache file {path} ({reason}); regenerating it", stacklevel=2)
             self.last_build.update(result.made)
-        log.info("%s world %s ready in %.1fs (made %s)", index.category, self.directory,
-                 time.perf_counter() - start, dict(self.last_build) or "nothing")
+        log.info(
+            "%s world %s ready in %.1fs (made %s)",
+            index.category,
+            self.directory,
+            time.perf_counter() - start,
+            dict(self.last_build) or "nothing",
+        )
         return WorldIndex.load(self.directory)
 
     @classmethod
@@ -151,9 +165,19 @@ class SyntheticWorld:
             except (ImportError, AttributeError, ValueError):
                 return None
         try:
-            world = cls(config["category"], str(index.root.parent), config["n_train"], config["n_val"], config["n_test"],
-                        config["seed"], config["samples_per_shape"], config["n_views"], config["image_size"],
-                        config["mesh_resolution"], shape_factory=factory)
+            world = cls(
+                config["category"],
+                str(index.root.parent),
+                config["n_train"],
+                config["n_val"],
+                config["n_test"],
+                config["seed"],
+                config["samples_per_shape"],
+                config["n_views"],
+                config["image_size"],
+                config["mesh_resolution"],
+                shape_factory=factory,
+            )
         except (KeyError, TypeError, ValueError):
             return None
         return world if world.config == config and world.directory.resolve() == index.root.resolve() else None
@@ -199,11 +223,14 @@ def open_world(root: str | Path) -> WorldIndex:
         log.info("%s is not a synthetic world this version can rebuild: its files are not checked here", index.root)
         return index
     if not os.access(index.root.parent, os.W_OK):  # shared read-only data: check, but repair nothing
-        problems = [f"{path} ({reason})" for sid in index.shape_ids()
-                    for path, reason in artifact_problems(index, sid).values()]
+        problems = [
+            f"{path} ({reason})" for sid in index.shape_ids() for path, reason in artifact_problems(index, sid).values()
+        ]
         if problems:
-            raise ValueError(f"the read-only world {index.root} has {len(problems)} missing or corrupt files, e.g. "
-                             f"{'; '.join(problems[:3])}: copy it somewhere writable and evaluate the copy (it is repaired there)")
+            raise ValueError(
+                f"the read-only world {index.root} has {len(problems)} missing or corrupt files, e.g. "
+                f"{'; '.join(problems[:3])}: copy it somewhere writable and evaluate the copy (it is repaired there)"
+            )
         return index
     return world.build()
 

@@ -94,8 +94,10 @@ def _load(path: Path, what: str) -> dict:
     try:
         blob = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as err:  # noqa: BLE001  (torch and pickle raise many types on damaged files)
-        raise ValueError(f"{what} {path} is damaged ({type(err).__name__}: {err}); delete {DONE_FILE} in its folder "
-                         "and rerun: stage 1 resumes from its last checkpoint and rewrites it") from err
+        raise ValueError(
+            f"{what} {path} is damaged ({type(err).__name__}: {err}); delete {DONE_FILE} in its folder "
+            "and rerun: stage 1 resumes from its last checkpoint and rewrites it"
+        ) from err
     if not isinstance(blob, dict):
         raise ValueError(f"{what} {path} is damaged (not a dict)")
     return blob

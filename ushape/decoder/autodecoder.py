@@ -34,7 +34,9 @@ def resolve_decoder_config(decoder: Any, latent_size: int) -> dict[str, Any]:
         raise ValueError("the decoder config needs a `_target_`, e.g. ushape.decoder.network.DeepSDFDecoder")
     config.setdefault("latent_size", latent_size)
     if config["latent_size"] != latent_size:
-        raise ValueError(f"decoder latent_size {config['latent_size']} differs from the module's latent_size {latent_size}")
+        raise ValueError(
+            f"decoder latent_size {config['latent_size']} differs from the module's latent_size {latent_size}"
+        )
     return config
 
 
@@ -111,26 +113,42 @@ class AutoDecoderModule(L.LightningModule):
         code_reg = code_regulariser(codes, hp.code_reg_lambda, self.current_epoch + 1, hp.code_reg_warmup_epochs)
         loss = sdf_loss + code_reg
         batch_size = codes.shape[0]
-        self.log_dict({"train/loss": loss, "train/sdf_loss": sdf_loss, "train/code_reg": code_reg},
-                      on_step=False, on_epoch=True, prog_bar=False, batch_size=batch_size)
-        self.log("train/loss_epoch", loss, on_step=False, on_epoch=True, prog_bar=True, logger=False, batch_size=batch_size)
+        self.log_dict(
+            {"train/loss": loss, "train/sdf_loss": sdf_loss, "train/code_reg": code_reg},
+            on_step=False,
+            on_epoch=True,
+            prog_bar=False,
+            batch_size=batch_size,
+        )
+        self.log(
+            "train/loss_epoch", loss, on_step=False, on_epoch=True, prog_bar=True, logger=False, batch_size=batch_size
+        )
         return loss
 
     def on_train_epoch_end(self) -> None:
         norms = self.codes.weight.detach().norm(dim=1)
         lr_net, lr_codes = (group["lr"] for group in self.optimizers().param_groups)
-        self.log_dict({"train/code_norm_mean": norms.mean(), "train/code_norm_max": norms.max(),
-                       "train/lr_net": lr_net, "train/lr_codes": lr_codes})
+        self.log_dict(
+            {
+                "train/code_norm_mean": norms.mean(),
+                "train/code_norm_max": norms.max(),
+                "train/lr_net": lr_net,
+                "train/lr_codes": lr_codes,
+            }
+        )
 
     def configure_optimizers(self) -> dict[str, Any]:
         hp = self.hparams
         # DeepSDF's two parameter groups, each with its own lr, in the configured optimiser (Adam).
-        optimiser = instantiate(hp.optimizer)([
-            {"params": self.decoder.parameters(), "lr": hp.lr_net},
-            {"params": self.codes.parameters(), "lr": hp.lr_codes},
-        ])
+        optimiser = instantiate(hp.optimizer)(
+            [
+                {"params": self.decoder.parameters(), "lr": hp.lr_net},
+                {"params": self.codes.parameters(), "lr": hp.lr_codes},
+            ]
+        )
         scheduler = torch.optim.lr_scheduler.LambdaLR(
-            optimiser, partial(deepsdf_lr_factor, step_epochs=hp.lr_step_epochs, gamma=hp.lr_gamma))
+            optimiser, partial(deepsdf_lr_factor, step_epochs=hp.lr_step_epochs, gamma=hp.lr_gamma)
+        )
         return {"optimizer": optimiser, "lr_scheduler": {"scheduler": scheduler, "interval": "epoch"}}
 
     def validation_step(self, batch: dict[str, Any], batch_idx: int) -> None:

@@ -61,16 +61,24 @@ def to_basis(codes: Tensor, mean: Tensor, rotation: Tensor) -> Tensor:  # [S, D]
 def rebase_decoder(decoder: DeepSDFDecoder, mean: Tensor, rotation: Tensor) -> tuple[DeepSDFDecoder, dict]:
     """A decoder g with g(x, y) = decoder(x, mean + R y), and the config that rebuilds it (no weight norm)."""
     if not isinstance(decoder, DeepSDFDecoder):
-        raise TypeError(f"only a DeepSDFDecoder can be rebased (its latent enters linearly), got {type(decoder).__name__}")
+        raise TypeError(
+            f"only a DeepSDFDecoder can be rebased (its latent enters linearly), got {type(decoder).__name__}"
+        )
     D = decoder.latent_size
     if mean.shape != (D,) or rotation.shape != (D, D):
         raise ValueError(f"mean {tuple(mean.shape)} / rotation {tuple(rotation.shape)} do not fit latent size {D}")
     linears = list(decoder.layers)
-    config = {"_target_": "ushape.decoder.network.DeepSDFDecoder", "latent_size": D,
-              "hidden_dims": [layer.weight.shape[0] + (D + 3 if i + 1 in decoder.latent_in else 0)
-                              for i, layer in enumerate(linears[:-1])],
-              "latent_in": list(decoder.latent_in), "dropout": decoder.dropout, "weight_norm": False,
-              "output_tanh": decoder.output_tanh}
+    config = {
+        "_target_": "ushape.decoder.network.DeepSDFDecoder",
+        "latent_size": D,
+        "hidden_dims": [
+            layer.weight.shape[0] + (D + 3 if i + 1 in decoder.latent_in else 0) for i, layer in enumerate(linears[:-1])
+        ],
+        "latent_in": list(decoder.latent_in),
+        "dropout": decoder.dropout,
+        "weight_norm": False,
+        "output_tanh": decoder.output_tanh,
+    }
     rebased = DeepSDFDecoder(**{k: v for k, v in config.items() if k != "_target_"})
     with torch.no_grad():
         for i, (old, new) in enumerate(zip(linears, rebased.layers)):
@@ -99,8 +107,16 @@ def rebase_folder(decoder_dir: str | Path, out_dir: str | Path) -> Path:
     for path in sorted(decoder_dir.glob(codes_file("*"))):
         table = load_codes(path)
         save_codes(out_dir / path.name, type(table)(table.shape_ids, to_basis(table.codes, mean, rotation)))
-    atomic.torch_save({"basis": "pca", "source": str(decoder_dir.resolve()), "mean": mean, "rotation": rotation,
-                       "variance": variance}, out_dir / BASIS_FILE)
+    atomic.torch_save(
+        {
+            "basis": "pca",
+            "source": str(decoder_dir.resolve()),
+            "mean": mean,
+            "rotation": rotation,
+            "variance": variance,
+        },
+        out_dir / BASIS_FILE,
+    )
     atomic.write_text(out_dir / DONE_FILE, "rebased\n")
     return out_dir
 
@@ -112,5 +128,8 @@ def ensure_basis(decoder_dir: str | Path, basis: str) -> Path:
     decoder_dir = Path(decoder_dir)
     if basis == "identity":
         return decoder_dir
-    return derived_folder(decoder_dir / f"basis_{basis}", lambda out: rebase_folder(decoder_dir, out),
-                          f"the stage-1 latent space in the {basis} basis")
+    return derived_folder(
+        decoder_dir / f"basis_{basis}",
+        lambda out: rebase_folder(decoder_dir, out),
+        f"the stage-1 latent space in the {basis} basis",
+    )

@@ -35,7 +35,6 @@ from ushape.workspace import CHECKPOINT_DIR, LAST_FILE
 log = logging.getLogger(__name__)
 
 
-
 def fit_decoder(
     world_root: str | Path,
     out_dir: str | Path,
@@ -78,14 +77,17 @@ def fit_decoder(
     save_codes(out_dir / codes_file("train"), CodeTable(datamodule.train_set.shape_ids, model.bounded_codes()))
     for split in ("val", "test"):
         save_codes(out_dir / codes_file(split), reconstruct_split(model, world_root, split, latent_optim))
-    atomic.write_json(out_dir / DONE_FILE, {
-        "world_root": str(Path(world_root).resolve()),
-        "epochs": fitter.current_epoch,
-        "precision": str(fitter.precision),
-        "devices": fitter.world_size,
-        "train_seconds": round(train_seconds, 1),
-        "total_seconds": round(train_seconds + time.time() - done_training, 1),
-    })
+    atomic.write_json(
+        out_dir / DONE_FILE,
+        {
+            "world_root": str(Path(world_root).resolve()),
+            "epochs": fitter.current_epoch,
+            "precision": str(fitter.precision),
+            "devices": fitter.world_size,
+            "train_seconds": round(train_seconds, 1),
+            "total_seconds": round(train_seconds + time.time() - done_training, 1),
+        },
+    )
     return out_dir
 
 

@@ -122,13 +122,15 @@ def fold_code(decoder: nn.Module, code: Tensor) -> FoldedDecoder | None:
         for i, module in enumerate(decoder.layers):
             weight, bias = module.weight.detach(), module.bias.detach()
             if i == 0:  # input [z, x]
-                layers.append(FoldedLayer(None, weight[:, d:].contiguous(), weight[:, :d].contiguous(),
-                                          bias + weight[:, :d] @ z))
+                layers.append(
+                    FoldedLayer(None, weight[:, d:].contiguous(), weight[:, :d].contiguous(), bias + weight[:, :d] @ z)
+                )
             elif i in decoder.latent_in:  # input [h', z, x]
                 k = weight.shape[1] - d - 3
                 code_w = weight[:, k : k + d].contiguous()
-                layers.append(FoldedLayer(weight[:, :k].contiguous(), weight[:, k + d :].contiguous(), code_w,
-                                          bias + code_w @ z))
+                layers.append(
+                    FoldedLayer(weight[:, :k].contiguous(), weight[:, k + d :].contiguous(), code_w, bias + code_w @ z)
+                )
             else:
                 layers.append(FoldedLayer(weight.contiguous(), None, None, bias.clone()))
     return FoldedDecoder(tuple(layers), decoder.output_tanh)

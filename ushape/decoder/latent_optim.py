@@ -19,6 +19,7 @@ from ushape.decoder.query import decoder_autocast, decoder_device, frozen
 
 SampleSource = Sequence[tuple[Tensor, Tensor]] | SDFSamplesDataset
 
+
 def optimise_codes(
     decoder: nn.Module,
     sdf_samples: SampleSource,
@@ -49,10 +50,13 @@ def optimise_codes(
             if step == lr_drop_at:
                 for group in optimiser.param_groups:
                     group["lr"] = lr / 10
-            rows = torch.cat([  # [S, K, 4]
-                _draw(pos, pos_count, n_pos, generator),
-                _draw(neg, neg_count, samples_per_iter - n_pos, generator),
-            ], dim=1)
+            rows = torch.cat(
+                [  # [S, K, 4]
+                    _draw(pos, pos_count, n_pos, generator),
+                    _draw(neg, neg_count, samples_per_iter - n_pos, generator),
+                ],
+                dim=1,
+            )
             with decoder_autocast(device, bf16):
                 pred = decoder(rows[..., :3], codes[:, None, :])  # [S, K]
             target = rows[..., 3].clamp(-clamp, clamp)
@@ -61,6 +65,7 @@ def optimise_codes(
             per_shape.sum().backward()
             optimiser.step()
     return codes.detach().cpu()
+
 
 def _padded_by_sign(source: SampleSource) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Per-shape samples split by sign, zero-padded: (pos [S, P, 4], counts [S], neg [S, Q, 4], counts [S])."""
@@ -75,16 +80,20 @@ def _padded_by_sign(source: SampleSource) -> tuple[Tensor, Tensor, Tensor, Tenso
     counts = [torch.tensor([len(t) for t in side]) for side in zip(*pairs)]
     return pos, counts[0], neg, counts[1]
 
+
 def _split_by_sign(xyz: Tensor, sdf: Tensor, index: int) -> tuple[Tensor, Tensor]:
     """(rows with sdf >= 0, rows with sdf < 0), rows (x, y, z, sdf) [N, 4]."""
     xyz, sdf = torch.as_tensor(xyz, dtype=torch.float32), torch.as_tensor(sdf, dtype=torch.float32).reshape(-1)
     if xyz.ndim != 2 or xyz.shape[1] != 3 or xyz.shape[0] != sdf.shape[0]:
-        raise ValueError(f"shape {index}: expected xyz [N, 3] and sdf [N], got {tuple(xyz.shape)} and {tuple(sdf.shape)}")
+        raise ValueError(
+            f"shape {index}: expected xyz [N, 3] and sdf [N], got {tuple(xyz.shape)} and {tuple(sdf.shape)}"
+        )
     rows = torch.cat([xyz, sdf[:, None]], dim=1)
     pos, neg = rows[sdf >= 0], rows[sdf < 0]
     if len(pos) == 0 or len(neg) == 0:
         raise ValueError(f"shape {index}: needs samples both outside (sdf >= 0) and inside (sdf < 0) the surface")
     return pos, neg
+
 
 def _draw(padded: Tensor, counts: Tensor, k: int, generator: torch.Generator) -> Tensor:
     """k rows per shape drawn with replacement from its first counts[s] rows. [S, P, 4] -> [S, k, 4]"""

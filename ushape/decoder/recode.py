@@ -53,8 +53,15 @@ def recode_folder(
     seconds = time.time() - started
     log.info("re-optimised %d training codes in %.1f s", len(shapes), seconds)
     save_codes(out_dir / codes_file("train"), CodeTable(shapes.shape_ids, codes))
-    atomic.write_json(out_dir / DONE_FILE, {"codes": "reoptimised", "source": str(decoder_dir.resolve()),
-                                            "latent_optim": dict(latent_optim or {}), "seconds": round(seconds, 1)})
+    atomic.write_json(
+        out_dir / DONE_FILE,
+        {
+            "codes": "reoptimised",
+            "source": str(decoder_dir.resolve()),
+            "latent_optim": dict(latent_optim or {}),
+            "seconds": round(seconds, 1),
+        },
+    )
     return out_dir
 
 
@@ -67,5 +74,8 @@ def ensure_codes(
     decoder_dir = Path(decoder_dir)
     if source == "autodecoder":
         return decoder_dir
-    return derived_folder(decoder_dir / f"codes_{source}", lambda out: recode_folder(decoder_dir, out, world_root, latent_optim),
-                          "training codes re-optimised like the held-out ones")
+    return derived_folder(
+        decoder_dir / f"codes_{source}",
+        lambda out: recode_folder(decoder_dir, out, world_root, latent_optim),
+        "training codes re-optimised like the held-out ones",
+    )

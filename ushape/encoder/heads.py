@@ -48,8 +48,9 @@ class GaussianHead(nn.Module):
         if hidden < 0 or not 0 <= dropout < 1:
             raise ValueError(f"hidden must be >= 0 and dropout in [0, 1); got {hidden}, {dropout}")
         self.logvar_min, self.logvar_max = float(logvar_min), float(logvar_max)
-        self.trunk = (nn.Sequential(nn.Linear(in_dim, hidden), nn.ReLU(), nn.Dropout(dropout)) if hidden
-                      else nn.Identity())
+        self.trunk = (
+            nn.Sequential(nn.Linear(in_dim, hidden), nn.ReLU(), nn.Dropout(dropout)) if hidden else nn.Identity()
+        )
         out_dim = hidden or in_dim
         self.mean = nn.Linear(out_dim, latent_size)
         self.logvar = nn.Linear(out_dim, latent_size)
@@ -119,7 +120,9 @@ class GaussianEnsemble(nn.Module):
 
     def member_of(self, shape_ids: list[str]) -> Tensor:
         """Bool [E, B]: member e trains on shape b (a fixed ~`keep` share of shapes per member, by hash)."""
-        draws = torch.tensor([[zlib.crc32(f"{e}/{s}".encode()) / 2**32 for s in shape_ids] for e in range(len(self.members))])
+        draws = torch.tensor(
+            [[zlib.crc32(f"{e}/{s}".encode()) / 2**32 for s in shape_ids] for e in range(len(self.members))]
+        )
         return draws < self.keep
 
     def forward(self, features: Tensor) -> tuple[Tensor, Tensor]:
@@ -153,8 +156,11 @@ class ImageEncoder(nn.Module):
             raise ValueError("encoder.backbone needs a `_target_`, e.g. ushape.encoder.backbones.efficientnet_lite0")
         self.backbone, self.feature_dim = instantiate(dict(backbone))
         head = {"logvar_min": logvar_min, "logvar_max": logvar_max, "hidden": hidden, "dropout": dropout}
-        self.head = (GaussianEnsemble(self.feature_dim, latent_size, members, **head) if members > 1
-                     else GaussianHead(self.feature_dim, latent_size, **head))
+        self.head = (
+            GaussianEnsemble(self.feature_dim, latent_size, members, **head)
+            if members > 1
+            else GaussianHead(self.feature_dim, latent_size, **head)
+        )
         self.freeze_backbone = freeze_backbone
         if freeze_backbone:
             self.backbone.requires_grad_(False)

@@ -23,7 +23,9 @@ def energy_score_from_samples(samples: Tensor, target: Tensor) -> Tensor:
     The second term pairs consecutive draws only, an unbiased estimate of E||Z - Z'|| / 2 in O(M).
     """
     if samples.ndim != 3 or samples.shape[0] != target.shape[0] or samples.shape[2] != target.shape[1]:
-        raise ValueError(f"samples must be [B, M, D] for target [B, D]; got {tuple(samples.shape)}, {tuple(target.shape)}")
+        raise ValueError(
+            f"samples must be [B, M, D] for target [B, D]; got {tuple(samples.shape)}, {tuple(target.shape)}"
+        )
     m = samples.shape[1]
     if m < 2:
         raise ValueError("the Energy Score needs at least 2 samples per prediction (n_samples >= 2)")
@@ -44,9 +46,7 @@ def energy_score(
     z_m = mu + exp(logvar / 2) * eps_m, so the gradient reaches both mu and logvar.
     """
     _check(mu, logvar, target)
-    eps = torch.randn(
-        (mu.shape[0], n_samples, mu.shape[1]), generator=generator, device=mu.device, dtype=mu.dtype
-    )
+    eps = torch.randn((mu.shape[0], n_samples, mu.shape[1]), generator=generator, device=mu.device, dtype=mu.dtype)
     samples = mu[:, None, :] + torch.exp(0.5 * logvar)[:, None, :] * eps
     return energy_score_from_samples(samples, target)
 

@@ -50,8 +50,12 @@ PAPER_OPTIMIZER = {"_target_": "torch.optim.SGD", "_partial_": True, "lr": 0.1, 
 NAMED_OPTIMIZERS = {"sgd": "torch.optim.SGD", "adam": "torch.optim.Adam", "adamw": "torch.optim.AdamW"}
 
 
-def optimizer_config(optimizer: Mapping[str, Any] | str, lr: float | None = None, momentum: float | None = None,
-                     weight_decay: float | None = None) -> dict[str, Any]:
+def optimizer_config(
+    optimizer: Mapping[str, Any] | str,
+    lr: float | None = None,
+    momentum: float | None = None,
+    weight_decay: float | None = None,
+) -> dict[str, Any]:
     """The optimiser as a `_partial_` config; lr, momentum and weight_decay, where given, override its values.
 
     A name (sgd, adam, adamw) is what checkpoints before configured optimisers hold: it becomes that
@@ -61,7 +65,9 @@ def optimizer_config(optimizer: Mapping[str, Any] | str, lr: float | None = None
         optimizer = OmegaConf.to_container(optimizer, resolve=True)
     if isinstance(optimizer, str):
         if optimizer not in NAMED_OPTIMIZERS:
-            raise ValueError(f"optimizer must be a `_partial_` config or one of {sorted(NAMED_OPTIMIZERS)}, got {optimizer!r}")
+            raise ValueError(
+                f"optimizer must be a `_partial_` config or one of {sorted(NAMED_OPTIMIZERS)}, got {optimizer!r}"
+            )
         config = {"_target_": NAMED_OPTIMIZERS[optimizer], "_partial_": True, "lr": 0.1, "weight_decay": 1e-4}
         if optimizer == "sgd":
             config["momentum"] = 0.9
@@ -172,18 +178,25 @@ class EncoderModule(L.LightningModule):
 
     def _ensemble_loss(self, head: GaussianEnsemble, batch: dict) -> Tensor:
         """Mean over members of each member's loss on the shapes of its bootstrap share."""
-        features = self.encoder.head_input(batch["features"] if "features" in batch else self.encoder.features(batch["image"]))
+        features = self.encoder.head_input(
+            batch["features"] if "features" in batch else self.encoder.features(batch["image"])
+        )
         mus, logvars = self._head_outputs(lambda: head.member_outputs(features), features.device)
         member_of = head.member_of(list(batch["shape_id"])).to(features.device)
-        losses = [self.loss_fn(mu[rows], logvar[rows], batch["code"][rows])
-                  for mu, logvar, rows in zip(mus, logvars, member_of) if rows.any()] or [mus.sum() * 0.0]
+        losses = [
+            self.loss_fn(mu[rows], logvar[rows], batch["code"][rows])
+            for mu, logvar, rows in zip(mus, logvars, member_of)
+            if rows.any()
+        ] or [mus.sum() * 0.0]
         # A member with no shape of its share in this batch still joins the graph (DDP), with weight 0.
         return torch.stack(losses).mean() + 0.0 * (mus.sum() + logvars.sum())
 
     def _eval_step(self, batch: dict, prefix: str) -> None:
         mu, logvar = self.predict_batch(batch)
         generator = torch.Generator(device=mu.device).manual_seed(0)
-        loss = self.loss_fn(mu, logvar, batch["code"], **({"generator": generator} if self._loss_takes_generator else {}))
+        loss = self.loss_fn(
+            mu, logvar, batch["code"], **({"generator": generator} if self._loss_takes_generator else {})
+        )
         self.log(f"{prefix}/loss", loss, prog_bar=True, batch_size=mu.shape[0], sync_dist=True)
         out = self._outputs
         for key, value in (("mu", mu), ("logvar", logvar), ("code", batch["code"])):
@@ -231,12 +244,16 @@ class EncoderModule(L.LightningModule):
         curves = {"equal variance (sigma=1)": calibration_curve(err, torch.ones_like(err), levels)}
         if self.predicts_variance:
             curves["predicted"] = calibration_curve(err, torch.exp(0.5 * logvar), levels)
-        writer.add_figure(f"{prefix}/latent_calibration", plot_calibration(curves, "latent calibration"), self.global_step)
+        writer.add_figure(
+            f"{prefix}/latent_calibration", plot_calibration(curves, "latent calibration"), self.global_step
+        )
         if out.get("images"):
             self.decoder.to(self.device)
             predicted = [render_code(self.decoder, m, self.hparams.mesh_resolution) for m, _ in out["mesh_codes"]]
             target = [render_code(self.decoder, z, self.hparams.mesh_resolution) for _, z in out["mesh_codes"]]
-            writer.add_figure(f"{prefix}/meshes", mesh_panel(torch.stack(out["images"]), predicted, target), self.global_step)
+            writer.add_figure(
+                f"{prefix}/meshes", mesh_panel(torch.stack(out["images"]), predicted, target), self.global_step
+            )
 
     def _tensorboard(self):
         for logger in self.loggers:

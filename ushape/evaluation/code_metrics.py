@@ -85,9 +85,17 @@ def decode_mesh(decoder, code: Tensor, resolution: int, bf16: bool = False) -> t
 class Reconstructor:
     """Meshes and scores codes for one decoder and one world, caching GT references and scores."""
 
-    def __init__(self, decoder, decoder_tag: str, world: WorldIndex, resolution: int = 64,
-                 cache_dir: str | Path | None = None, voxels: int = PIX3D_VOXELS, n_points: int = PIX3D_POINTS,
-                 bf16: bool = False) -> None:
+    def __init__(
+        self,
+        decoder,
+        decoder_tag: str,
+        world: WorldIndex,
+        resolution: int = 64,
+        cache_dir: str | Path | None = None,
+        voxels: int = PIX3D_VOXELS,
+        n_points: int = PIX3D_POINTS,
+        bf16: bool = False,
+    ) -> None:
         self.decoder, self.decoder_tag, self.world, self.bf16 = decoder, decoder_tag, world, bf16
         self.resolution, self.voxels, self.n_points = resolution, voxels, n_points
         self.cache_dir = Path(cache_dir) if cache_dir is not None else None
@@ -120,8 +128,9 @@ class Reconstructor:
         try:
             grid = decode_grid(self.decoder, code, self.resolution, self.bf16)
             mesh = marching_cubes(grid)
-            result = pix3d_metrics(mesh, grid_inside_fn(grid), self.reference(shape_id),
-                                   emd=emd or (cached or {}).get("emd") is not None)
+            result = pix3d_metrics(
+                mesh, grid_inside_fn(grid), self.reference(shape_id), emd=emd or (cached or {}).get("emd") is not None
+            )
         except EmptySurfaceError:
             result = dict(EMPTY_SCORES)
         result["empty"] = bool(result["iou"] == 0.0 and math.isnan(result["cd"]))

@@ -66,8 +66,12 @@ def evaluated_world(cfg: DictConfig) -> str | None:
         raise ValueError("give the evaluated world either as world=<folder> or as data=<group>, not both")
     started = time.time()
     world = instantiate(cfg.data).build()
-    log.info("evaluation world ready in %.1f s: %s (test %d shapes)", time.time() - started, world.root,
-             len(world.shape_ids("test")))
+    log.info(
+        "evaluation world ready in %.1f s: %s (test %d shapes)",
+        time.time() - started,
+        world.root,
+        len(world.shape_ids("test")),
+    )
     return str(world.root)
 
 
@@ -102,16 +106,23 @@ def _evaluate(cfg: DictConfig) -> float | None:
     out_dir = Path(cfg.out_dir) if cfg.get("out_dir") else default_out_dir(runs)
     world_dir = evaluated_world(cfg)
     log.info("evaluating %d run(s) into %s: %s", len(runs), out_dir, ", ".join(map(str, runs)))
-    result = evaluate_runs(runs, settings, Path(cfg.cache_dir) if cfg.get("cache_dir") else None,
-                           setting=configured_setting(cfg), world_dir=world_dir,
-                           showcase_dir=out_dir if settings.protocols else None,
-                           temperature=bool(cfg.get("temperature", False)))
+    result = evaluate_runs(
+        runs,
+        settings,
+        Path(cfg.cache_dir) if cfg.get("cache_dir") else None,
+        setting=configured_setting(cfg),
+        world_dir=world_dir,
+        showcase_dir=out_dir if settings.protocols else None,
+        temperature=bool(cfg.get("temperature", False)),
+    )
     paths = write_results(result, out_dir, tensorboard=cfg.tensorboard)
     if "tables" in paths:
         print(paths["tables"].read_text())
     for row in result["rows"]:
-        print(f"{row['label']:>10} {row['fusion']:>12} min_scale {row['min_scale']:g}: single-view IoU "
-              f"{row['single_view_iou']:.4f}, {row['group_size']}-view IoU {row['multi_view_iou']:.4f}")
+        print(
+            f"{row['label']:>10} {row['fusion']:>12} min_scale {row['min_scale']:g}: single-view IoU "
+            f"{row['single_view_iou']:.4f}, {row['group_size']}-view IoU {row['multi_view_iou']:.4f}"
+        )
     print(f"Evaluation written to {out_dir} ({result['seconds']} s)")
     rows = result["rows"]
     return sum(r["multi_view_iou"] for r in rows) / len(rows) if rows else None

@@ -48,8 +48,9 @@ class DepthTarget:
     world_to_cam: np.ndarray  # [4, 4]
 
 
-def view_depth_errors(decoder, target: DepthTarget, method: str, n_codes: int = 10, steps: int = 50,
-                      seed: int = 0) -> tuple[Tensor, Tensor]:
+def view_depth_errors(
+    decoder, target: DepthTarget, method: str, n_codes: int = 10, steps: int = 50, seed: int = 0
+) -> tuple[Tensor, Tensor]:
     """(signed error true - predicted mean [N], predicted std [N]) at the pixels where both hit."""
     hw = tuple(target.depth.shape)
     codes = None
@@ -81,8 +82,12 @@ def depth_calibration(
         "mean_abs_error": float(error.abs().mean()),
         "mean_std": float(std.mean()),
         "rank_corr": float(spearman_correlation(error.abs(), std)) if len(error) > 1 else math.nan,
-        **{name: float((error.abs() <= two_sided_quantile(torch.tensor(level, dtype=torch.float64)) * std)
-                       .double().mean()) for name, level in COVERAGE_LEVELS.items()},
+        **{
+            name: float(
+                (error.abs() <= two_sided_quantile(torch.tensor(level, dtype=torch.float64)) * std).double().mean()
+            )
+            for name, level in COVERAGE_LEVELS.items()
+        },
         "calibration_error": calibration_error(p, freq),
         "mean_z": float(z.mean()) if len(z) else math.nan,
         "rms_z": float(z.square().mean().sqrt()) if len(z) else math.nan,
@@ -117,9 +122,19 @@ def true_depths(world: WorldIndex, shape_id: str, views: Sequence[int], size: in
     return out
 
 
-def depth_calibration_rows(spec: EncoderSpec, encodings: Encodings, decoder, world: WorldIndex, size: int = 48,
-                           methods: Sequence[str] = ("implicit", "mc"), n_codes: int = 10, steps: int = 50,
-                           views_per_shape: int | None = 2, n_levels: int = 20, seed: int = 0) -> tuple[list, dict]:
+def depth_calibration_rows(
+    spec: EncoderSpec,
+    encodings: Encodings,
+    decoder,
+    world: WorldIndex,
+    size: int = 48,
+    methods: Sequence[str] = ("implicit", "mc"),
+    n_codes: int = 10,
+    steps: int = 50,
+    views_per_shape: int | None = 2,
+    n_levels: int = 20,
+    seed: int = 0,
+) -> tuple[list, dict]:
     """Table D's rows (one per depth method) and calibration curves for one probabilistic encoder's views."""
     if not spec.probabilistic:
         return [], {}
@@ -133,8 +148,11 @@ def depth_calibration_rows(spec: EncoderSpec, encodings: Encodings, decoder, wor
         for i, (depth, K, w2c) in zip(rows, truths):
             target = DepthTarget(encodings.mu[i], encodings.var[i], depth, K, w2c)
             for method in methods:
-                pools[method].append(view_depth_errors(decoder, target, method, n_codes, steps,
-                                                       view_seed(seed, shape_id, encodings.keys[i].view)))
+                pools[method].append(
+                    view_depth_errors(
+                        decoder, target, method, n_codes, steps, view_seed(seed, shape_id, encodings.keys[i].view)
+                    )
+                )
     out, curves = [], {}
     for method, parts in pools.items():
         error, std = torch.cat([e for e, _ in parts]), torch.cat([s for _, s in parts])
@@ -143,7 +161,8 @@ def depth_calibration_rows(spec: EncoderSpec, encodings: Encodings, decoder, wor
             continue
         scores, curve = depth_calibration(error, std, n_levels)
         label = method if method != "mc" else f"mc M={n_codes}"
-        out.append({"encoder": spec.name, "label": spec.label, "method": label, "size": size,
-                    "n_views": len(parts), **scores})
+        out.append(
+            {"encoder": spec.name, "label": spec.label, "method": label, "size": size, "n_views": len(parts), **scores}
+        )
         curves[f"{spec.label} (depth, {label})"] = curve
     return out, curves

@@ -25,8 +25,19 @@ from ushape.evaluation.runner import RESULT_ROW
 GATHERED = "gathered"
 # Overrides that name folders, not settings: left out of the table's `overrides` column.
 FOLDER_KEYS = ("runs", "sweep", "world", "cache_dir", "out_dir")
-COLUMNS = ("job", "overrides", "label", "fusion", "min_scale", "single_view_iou", "multi_view_iou",
-           "single_view_cd", "multi_view_cd", "n_views", "n_instances")
+COLUMNS = (
+    "job",
+    "overrides",
+    "label",
+    "fusion",
+    "min_scale",
+    "single_view_iou",
+    "multi_view_iou",
+    "single_view_cd",
+    "multi_view_cd",
+    "n_views",
+    "n_instances",
+)
 
 
 def gather_rows(sweep: str | Path) -> list[dict[str, Any]]:
@@ -36,8 +47,10 @@ def gather_rows(sweep: str | Path) -> list[dict[str, Any]]:
         raise FileNotFoundError(f"sweep folder {sweep} does not exist")
     files = sorted(sweep.rglob(RESULT_ROW), key=lambda p: _job_order(p.parent.relative_to(sweep).as_posix()))
     if not files:
-        raise FileNotFoundError(f"no <job>/{RESULT_ROW} under {sweep}: is it an evaluation sweep "
-                                "(`python eval.py -m ...`)? A training sweep is evaluated with `python eval.py sweep=...`")
+        raise FileNotFoundError(
+            f"no <job>/{RESULT_ROW} under {sweep}: is it an evaluation sweep "
+            "(`python eval.py -m ...`)? A training sweep is evaluated with `python eval.py sweep=...`"
+        )
     rows = []
     for path in files:
         job = path.parent

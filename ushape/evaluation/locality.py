@@ -54,7 +54,9 @@ class ViewParts:
     away: np.ndarray
 
 
-def surface_points(world: WorldIndex, shape_id: str, n_points: int, seed: int = 0) -> tuple[trimesh.Trimesh, np.ndarray]:
+def surface_points(
+    world: WorldIndex, shape_id: str, n_points: int, seed: int = 0
+) -> tuple[trimesh.Trimesh, np.ndarray]:
     """The shape's ground-truth mesh and a repeatable sample of n_points [P, 3] on its surface."""
     path = world.mesh_path(shape_id)
     if not path.is_file():
@@ -107,8 +109,9 @@ def _shift(values_clean: np.ndarray, values_crop: np.ndarray, parts: ViewParts) 
     return clean, crop, None if clean is None or crop is None else crop / clean
 
 
-def view_record(parts: ViewParts, clean: tuple[np.ndarray, np.ndarray], crop: tuple[np.ndarray, np.ndarray],
-                std_fused: np.ndarray) -> dict:
+def view_record(
+    parts: ViewParts, clean: tuple[np.ndarray, np.ndarray], crop: tuple[np.ndarray, np.ndarray], std_fused: np.ndarray
+) -> dict:
     """The ratios of the module docstring for one view (None where a point set is empty).
 
     clean and crop are (error [P], std [P]) from `point_stats`. The same ratios of the error say where
@@ -119,10 +122,13 @@ def view_record(parts: ViewParts, clean: tuple[np.ndarray, np.ndarray], crop: tu
     _, _, error_shift = _shift(err_clean, err_crop, parts)
     visible = ~parts.hidden
     return {
-        "n_visible": int(visible.sum()), "n_away": int(parts.away.sum()),
+        "n_visible": int(visible.sum()),
+        "n_away": int(parts.away.sum()),
         "hidden_over_visible": median_ratio(std_clean, parts.hidden, visible),
         "error_hidden_over_visible": median_ratio(err_clean, parts.hidden, visible),
-        "away_over_kept_clean": away_clean, "away_over_kept_cropped": away_crop, "crop_shift": shift,
+        "away_over_kept_clean": away_clean,
+        "away_over_kept_cropped": away_crop,
+        "crop_shift": shift,
         "error_crop_shift": error_shift,
         "std_gain": float(std_crop.mean() / std_clean.mean()) if std_clean.mean() > 0 else None,
         "error_gain": float(err_crop.mean() / err_clean.mean()) if err_clean.mean() > 0 else None,
@@ -131,9 +137,17 @@ def view_record(parts: ViewParts, clean: tuple[np.ndarray, np.ndarray], crop: tu
     }
 
 
-def locality_records(spec: EncoderSpec, clean: Encodings, cropped: Encodings, decoder, world: WorldIndex,
-                     min_scale: float, seed: int = 0, n_points: int = 2048,
-                     views_per_shape: int | None = None) -> list[dict]:
+def locality_records(
+    spec: EncoderSpec,
+    clean: Encodings,
+    cropped: Encodings,
+    decoder,
+    world: WorldIndex,
+    min_scale: float,
+    seed: int = 0,
+    n_points: int = 2048,
+    views_per_shape: int | None = None,
+) -> list[dict]:
     """One record per test view (of a probabilistic encoder): where its uncertainty sits (module docstring)."""
     if not spec.probabilistic:
         return []
@@ -151,15 +165,27 @@ def locality_records(spec: EncoderSpec, clean: Encodings, cropped: Encodings, de
         for key in keys[:views_per_shape]:
             with Image.open(world.image_path(key.shape_id, key.view)) as image:  # reads the header only
                 width, height = image.size
-            box = crop_box(height, width, min_scale, CROP_RATIO, torch.Generator().manual_seed(
-                view_seed(seed, key.shape_id, key.view)))
+            box = crop_box(
+                height,
+                width,
+                min_scale,
+                CROP_RATIO,
+                torch.Generator().manual_seed(view_seed(seed, key.shape_id, key.view)),
+            )
             parts = split_points(mesh, points, Ks[key.view], w2cs[key.view], box)
             (mu_c, var_c), (mu_x, var_x) = clean.select([key]), cropped.select([key])
             clean_stats = point_stats(decoder, mu_c[0], var_c[0], points)
             crop_stats = point_stats(decoder, mu_x[0], var_x[0], points)
-            records.append({"encoder": spec.name, "label": spec.label, "min_scale": float(min_scale),
-                            "shape_id": shape_id, "view": key.view,
-                            **view_record(parts, clean_stats, crop_stats, std_fused)})
+            records.append(
+                {
+                    "encoder": spec.name,
+                    "label": spec.label,
+                    "min_scale": float(min_scale),
+                    "shape_id": shape_id,
+                    "view": key.view,
+                    **view_record(parts, clean_stats, crop_stats, std_fused),
+                }
+            )
     return records
 
 
@@ -174,12 +200,25 @@ def summarise_locality(records: Sequence[dict], min_away: float = 0.05) -> list[
     rows = []
     for (encoder, scale), group in groups.items():
         cropped = [r for r in group if r["n_visible"] and r["n_away"] >= min_away * r["n_visible"]]
-        row = {"encoder": encoder, "label": group[0]["label"], "min_scale": scale, "n_views": len(group),
-               "n_cropped_views": len(cropped)}
-        for name, pool in (("hidden_over_visible", group), ("error_hidden_over_visible", group),
-                           ("away_over_kept_clean", cropped), ("away_over_kept_cropped", cropped),
-                           ("crop_shift", cropped), ("error_crop_shift", cropped), ("std_gain", group),
-                           ("error_gain", group), ("fused_hidden", group), ("fused_visible", group)):
+        row = {
+            "encoder": encoder,
+            "label": group[0]["label"],
+            "min_scale": scale,
+            "n_views": len(group),
+            "n_cropped_views": len(cropped),
+        }
+        for name, pool in (
+            ("hidden_over_visible", group),
+            ("error_hidden_over_visible", group),
+            ("away_over_kept_clean", cropped),
+            ("away_over_kept_cropped", cropped),
+            ("crop_shift", cropped),
+            ("error_crop_shift", cropped),
+            ("std_gain", group),
+            ("error_gain", group),
+            ("fused_hidden", group),
+            ("fused_visible", group),
+        ):
             values = np.array([r[name] for r in pool if r[name] is not None], dtype=np.float64)
             row[name] = float(np.median(values)) if len(values) else None
             row[f"{name}_above_1"] = float(np.mean(values > 1)) if len(values) else None

@@ -22,8 +22,11 @@ def iou_vs_k(summary: Sequence[dict], group_size: int, min_scale: float = 1.0):
     """Multi-view IoU of Bayesian-K against K (K = all views at the right), with average fusion dashed."""
     fig, ax = _figure()
     for encoder, label in encoder_order(summary):
-        cells = {r["method"]: r["iou"] for r in summary
-                 if r["encoder"] == encoder and r["protocol"] == "multi" and r["min_scale"] == min_scale}
+        cells = {
+            r["method"]: r["iou"]
+            for r in summary
+            if r["encoder"] == encoder and r["protocol"] == "multi" and r["min_scale"] == min_scale
+        }
         ks = [k for k in range(1, group_size) if f"bayesian-{k}" in cells]
         if "bayesian" in cells:
             xs, ys = ks + [group_size], [cells[f"bayesian-{k}"] for k in ks] + [cells["bayesian"]]
@@ -45,8 +48,11 @@ def iou_vs_min_scale(summary: Sequence[dict], k: int = 4):
     for encoder, label in encoder_order(summary):
         methods = ["average"] if encoder == "l2" else ["bayesian", f"bayesian-{k}"]
         for method in methods:
-            points = sorted((r["min_scale"], r["iou"]) for r in summary
-                            if r["encoder"] == encoder and r["protocol"] == "multi" and r["method"] == method)
+            points = sorted(
+                (r["min_scale"], r["iou"])
+                for r in summary
+                if r["encoder"] == encoder and r["protocol"] == "multi" and r["method"] == method
+            )
             if points:
                 ax.plot(*zip(*points), marker="o", label=f"{label} {method}")
     ax.set_xscale("log")

@@ -58,8 +58,11 @@ def group_views(keys: Sequence[ViewKey], group_size: int = GROUP_SIZE, drop_shor
         if len(views) < group_size and drop_short:
             continue
         if len(views) < group_size:
-            warnings.warn(f"shape {shape_id} has {len(views)} views, fewer than group_size={group_size}: "
-                          "fusing all of them as one instance", stacklevel=2)
+            warnings.warn(
+                f"shape {shape_id} has {len(views)} views, fewer than group_size={group_size}: "
+                "fusing all of them as one instance",
+                stacklevel=2,
+            )
             groups.append(views)
             continue
         groups += [views[i : i + group_size] for i in range(0, len(views) - group_size + 1, group_size)]
@@ -80,8 +83,9 @@ def fusion_methods(probabilistic: bool, ks: Iterable[int] = ()) -> dict[str, Fus
     return methods
 
 
-def single_view_records(spec: EncoderSpec, encodings: Encodings, reconstructor, min_scale: float,
-                        emd: bool = False) -> list[dict]:
+def single_view_records(
+    spec: EncoderSpec, encodings: Encodings, reconstructor, min_scale: float, emd: bool = False
+) -> list[dict]:
     """One record per view: its own code reconstructed and scored."""
     records = []
     for i, key in enumerate(tqdm(encodings.keys, desc=f"{spec.name} single view {min_scale:g}", leave=False)):
@@ -106,8 +110,15 @@ def reference_records(codes: CodeTable, train_codes: CodeTable, shape_ids: Seque
     return records
 
 
-def multi_view_records(spec: EncoderSpec, encodings: Encodings, groups: Sequence[Sequence[ViewKey]],
-                       methods: dict[str, FuseFn], reconstructor, min_scale: float, quiet: bool = True) -> list[dict]:
+def multi_view_records(
+    spec: EncoderSpec,
+    encodings: Encodings,
+    groups: Sequence[Sequence[ViewKey]],
+    methods: dict[str, FuseFn],
+    reconstructor,
+    min_scale: float,
+    quiet: bool = True,
+) -> list[dict]:
     """One record per (instance, fusion method): the fused code reconstructed and scored.
 
     quiet silences the fusion's "K > views" warning: the tables' Bayesian-K rows expect it for short instances.
@@ -127,11 +138,20 @@ def multi_view_records(spec: EncoderSpec, encodings: Encodings, groups: Sequence
     return records
 
 
-def _record(spec: EncoderSpec, protocol: str, min_scale: float, method: str, views: int, shape_id: str,
-            item: str, scores: dict) -> dict:
-    return {"encoder": spec.name, "label": spec.label, "protocol": protocol, "min_scale": float(min_scale),
-            "method": method, "views": views, "shape_id": shape_id, "item": item,
-            **{k: scores[k] for k in ("iou", "cd", "emd") if k in scores}}
+def _record(
+    spec: EncoderSpec, protocol: str, min_scale: float, method: str, views: int, shape_id: str, item: str, scores: dict
+) -> dict:
+    return {
+        "encoder": spec.name,
+        "label": spec.label,
+        "protocol": protocol,
+        "min_scale": float(min_scale),
+        "method": method,
+        "views": views,
+        "shape_id": shape_id,
+        "item": item,
+        **{k: scores[k] for k in ("iou", "cd", "emd") if k in scores},
+    }
 
 
 CELL_KEYS = ("encoder", "label", "protocol", "min_scale", "method", "views")

@@ -1,13 +1,13 @@
 """Where an evaluation's results go: JSON, CSV and Markdown tables, PNG plots and TensorBoard.
 
-    <out_dir>/results.json      everything (records, summary, uncertainty rows, calibration curves)
-    <out_dir>/records.csv       one row per scored reconstruction
-    <out_dir>/summary.csv       one row per table cell
-    <out_dir>/table1.csv ... tables.md   the paper's tables (and ours: tableu, tablel, tabled)
-    <out_dir>/depth.csv         depth-std calibration per encoder and depth method (Table D)
-    <out_dir>/eval_row.json     the configured fusion/crop setting's rows (what a sweep gathers)
-    <out_dir>/plots/*.png       calibration (latent, SDF, depth), IoU vs K, IoU vs min scale
-    <out_dir>/tensorboard/      the same numbers and figures
+<out_dir>/results.json      everything (records, summary, uncertainty rows, calibration curves)
+<out_dir>/records.csv       one row per scored reconstruction
+<out_dir>/summary.csv       one row per table cell
+<out_dir>/table1.csv ... tables.md   the paper's tables (and ours: tableu, tablel, tabled)
+<out_dir>/depth.csv         depth-std calibration per encoder and depth method (Table D)
+<out_dir>/eval_row.json     the configured fusion/crop setting's rows (what a sweep gathers)
+<out_dir>/plots/*.png       calibration (latent, SDF, depth), IoU vs K, IoU vs min scale
+<out_dir>/tensorboard/      the same numbers and figures
 """
 
 from __future__ import annotations
@@ -39,8 +39,12 @@ def build_tables(result: dict[str, Any]) -> list[tables.Table]:
     """The paper's tables that this evaluation has numbers for."""
     summary, settings = result["summary"], result["settings"]
     group = settings["group_size"]
-    built = [tables.table1(summary), tables.table3(summary, group), tables.table4(summary, settings["table4_k"]),
-             tables.table5(summary, group)]
+    built = [
+        tables.table1(summary),
+        tables.table3(summary, group),
+        tables.table4(summary, settings["table4_k"]),
+        tables.table5(summary, group),
+    ]
     if result.get("uncertainty"):
         built.append(tables.table_s1(result["uncertainty"], summary))
     if result.get("error_tracking"):
@@ -58,10 +62,12 @@ def build_figures(result: dict[str, Any]) -> dict[str, Any]:
     figures = {}
     for space, curves in result.get("curves", {}).items():
         if curves:
-            title = {"latent": "Calibration, latent space", "depth": "Calibration, depth"}.get(space,
-                                                                                          "Calibration, SDF space")
+            title = {"latent": "Calibration, latent space", "depth": "Calibration, depth"}.get(
+                space, "Calibration, SDF space"
+            )
             figures[f"calibration_{space}"] = plots.plot_calibration(
-                {name: (c["p"], c["freq"]) for name, c in curves.items()}, title)
+                {name: (c["p"], c["freq"]) for name, c in curves.items()}, title
+            )
     if any(r["protocol"] == "multi" and r["min_scale"] == 1.0 for r in summary):
         figures["iou_vs_k"] = plots.iou_vs_k(summary, settings["group_size"])
     if len({r["min_scale"] for r in summary if r["protocol"] == "multi"}) > 1:
@@ -106,8 +112,9 @@ def write_tensorboard(result: dict[str, Any], built: Sequence[tables.Table], fig
                 if isinstance(value, float) and math.isfinite(value):
                     writer.add_scalar(f"{tag}/{key}", value)
         for row in result.get("rows", []):
-            writer.add_scalar(f"{row['label']}/sweep_{row['fusion']}_scale{row['min_scale']:g}/multi_view_iou",
-                              row["multi_view_iou"])
+            writer.add_scalar(
+                f"{row['label']}/sweep_{row['fusion']}_scale{row['min_scale']:g}/multi_view_iou", row["multi_view_iou"]
+            )
         for name, fig in figures.items():
             writer.add_figure(f"eval/{name}", fig)
         for table in built:

@@ -95,8 +95,10 @@ class Settings:
         if self.group_size < 1 or self.resolution < 8:
             raise ValueError("group_size must be >= 1 and resolution >= 8 (grid points per axis)")
         if not set(self.depth_methods) <= set(DEPTH_METHODS) or self.depth_size < 1 or self.depth_codes < 2:
-            raise ValueError(f"depth_methods must be some of {DEPTH_METHODS}, depth_size >= 1 and depth_codes >= 2; "
-                             f"got {list(self.depth_methods)}, {self.depth_size}, {self.depth_codes}")
+            raise ValueError(
+                f"depth_methods must be some of {DEPTH_METHODS}, depth_size >= 1 and depth_codes >= 2; "
+                f"got {list(self.depth_methods)}, {self.depth_size}, {self.depth_codes}"
+            )
 
 
 @dataclass
@@ -117,9 +119,15 @@ def loss_name(predictor) -> str:
     return LOSS_NAMES.get(target.rsplit(".", 1)[-1], target.rsplit(".", 1)[-1] or "unknown")
 
 
-def load_encoder(run_dir: str | Path, settings: Settings, cache_dir: Path | None, taken: set[str],
-                 world_dir: str | Path | None = None, temperature: bool = False,
-                 opened: dict[Path, WorldIndex] | None = None) -> EncoderRun:
+def load_encoder(
+    run_dir: str | Path,
+    settings: Settings,
+    cache_dir: Path | None,
+    taken: set[str],
+    world_dir: str | Path | None = None,
+    temperature: bool = False,
+    opened: dict[Path, WorldIndex] | None = None,
+) -> EncoderRun:
     """A run folder -> its predictor, world (run.json's, or world_dir), decoder and the test views to evaluate.
 
     temperature=True scales the predicted variances by the temperature stored beside the checkpoint.
@@ -132,8 +140,10 @@ def load_encoder(run_dir: str | Path, settings: Settings, cache_dir: Path | None
         predictor.temperature = read_temperature(predictor.checkpoint)
     world_dir = world_dir or predictor.world
     if world_dir is None:
-        raise FileNotFoundError(f"{run_dir} has no run.json naming its data world (an unfinished run?): "
-                                "pass the world folder with world=<outputs/data/synthetic/...>")
+        raise FileNotFoundError(
+            f"{run_dir} has no run.json naming its data world (an unfinished run?): "
+            "pass the world folder with world=<outputs/data/synthetic/...>"
+        )
     opened = {} if opened is None else opened
     key = Path(world_dir).resolve()
     world = opened[key] if key in opened else opened.setdefault(key, open_world(world_dir))
@@ -141,12 +151,16 @@ def load_encoder(run_dir: str | Path, settings: Settings, cache_dir: Path | None
     if name in taken:  # two runs with one loss: keep both, told apart by their folder
         name = f"{name}:{Path(run_dir).name}"
     taken.add(name)
-    spec = P.EncoderSpec(name, P.encoder_label(name.split(":")[0]) + name[len(name.split(":")[0]):],
-                         probabilistic=bool(predictor.model.predicts_variance))
+    spec = P.EncoderSpec(
+        name,
+        P.encoder_label(name.split(":")[0]) + name[len(name.split(":")[0]) :],
+        probabilistic=bool(predictor.model.predicts_variance),
+    )
     decoder_dir = decoder_dir_of(predictor)
     tag = f"{decoder_dir.resolve()}|{(decoder_dir / 'decoder.pt').stat().st_mtime_ns}"
-    reconstructor = Reconstructor(predictor.decoder, tag, world, settings.resolution, cache_dir,
-                                  n_points=settings.n_points, bf16=settings.bf16)
+    reconstructor = Reconstructor(
+        predictor.decoder, tag, world, settings.resolution, cache_dir, n_points=settings.n_points, bf16=settings.bf16
+    )
     ids = world.shape_ids(settings.split)[: settings.max_shapes]
     return EncoderRun(spec, predictor, world, reconstructor, decoder_dir, test_views(world, settings.split, ids))
 
@@ -164,8 +178,11 @@ def mask_variants(run: EncoderRun) -> list[EncoderRun]:
     variants = []
     for i, mask_input in enumerate(inputs):
         suffix, label = MASK_VARIANTS[mask_input]
-        spec = P.EncoderSpec(run.spec.name + ("" if i == 0 else suffix or f"-{mask_input}"),
-                             f"{run.spec.label} {label}", run.spec.probabilistic)
+        spec = P.EncoderSpec(
+            run.spec.name + ("" if i == 0 else suffix or f"-{mask_input}"),
+            f"{run.spec.label} {label}",
+            run.spec.probabilistic,
+        )
         variants.append(replace(run, spec=spec, mask_input=mask_input, only=None if i == 0 else ("single_view",)))
     return variants
 
@@ -177,29 +194,47 @@ def split_codes(run: EncoderRun, settings: Settings, cache_dir: Path | None) -> 
     ids = run.world.shape_ids(settings.split)
     if set(ids) <= set(table.shape_ids):
         return table
-    key = hashlib.sha1(f"{run.reconstructor.decoder_tag}|{run.world.root.resolve()}|{settings.split}|"
-                       f"{settings.code_iterations}".encode()).hexdigest()[:16]
+    key = hashlib.sha1(
+        f"{run.reconstructor.decoder_tag}|{run.world.root.resolve()}|{settings.split}|"
+        f"{settings.code_iterations}".encode()
+    ).hexdigest()[:16]
     cache = Path(cache_dir) / f"codes_{key}.pt" if cache_dir is not None else None
     if cache is not None and cache.is_file():
         return load_codes(cache)
-    log.info("latent-optimising the codes of %d %s shapes of %s against %s (%d iterations)", len(ids),
-             settings.split, run.world.root, run.codes_dir, settings.code_iterations)
+    log.info(
+        "latent-optimising the codes of %d %s shapes of %s against %s (%d iterations)",
+        len(ids),
+        settings.split,
+        run.world.root,
+        run.codes_dir,
+        settings.code_iterations,
+    )
     shapes = SDFSamplesDataset(run.world.root, settings.split, samples_per_shape=2)  # optimise_codes draws its own
-    codes = optimise_codes(run.predictor.decoder, shapes, iterations=settings.code_iterations,
-                           lr_drop_at=settings.code_iterations // 2, seed=settings.seed)
+    codes = optimise_codes(
+        run.predictor.decoder,
+        shapes,
+        iterations=settings.code_iterations,
+        lr_drop_at=settings.code_iterations // 2,
+        seed=settings.seed,
+    )
     table = CodeTable(list(shapes.shape_ids), codes.detach().cpu())
     if cache is not None:
         save_codes(cache, table)
     return table
 
 
-def evaluate_encoder(run: EncoderRun, settings: Settings, cache_dir: Path | None,
-                     setting: tuple[Callable, str, float] | None = None) -> dict[str, list]:
+def evaluate_encoder(
+    run: EncoderRun, settings: Settings, cache_dir: Path | None, setting: tuple[Callable, str, float] | None = None
+) -> dict[str, list]:
     """Records of every protocol asked for, the uncertainty rows and curves, and the configured setting's row."""
     out: dict[str, Any] = {**{key: [] for key in ROW_KEYS}, "curves": {}}
     protocols = [p for p in settings.protocols if run.only is None or p in run.only]
-    encode = lambda scale: encode_views(run.predictor, run.world, run.keys, scale, settings.seed, cache_dir,  # noqa: E731
-                                        mask_input=run.mask_input)
+
+    def encode(scale: float):
+        return encode_views(
+            run.predictor, run.world, run.keys, scale, settings.seed, cache_dir, mask_input=run.mask_input
+        )
+
     groups = P.group_views(run.keys, settings.group_size, drop_short=bool(run.world.config.get("drop_short_instances")))
     rec = run.reconstructor
     if "single_view" in protocols or "corrupted" in protocols:
@@ -219,9 +254,17 @@ def evaluate_encoder(run: EncoderRun, settings: Settings, cache_dir: Path | None
         encodings = encode(1.0)
         codes = split_codes(run, settings, cache_dir)
         rows, latent_curves = latent_rows(run.spec, encodings, codes, settings.calibration_levels)
-        sdf, sdf_curves = sdf_rows(run.spec, encodings, run.predictor.decoder, run.world, settings.sdf_points,
-                                   settings.mc_samples, settings.sdf_clamp, settings.sdf_views,
-                                   settings.calibration_levels)
+        sdf, sdf_curves = sdf_rows(
+            run.spec,
+            encodings,
+            run.predictor.decoder,
+            run.world,
+            settings.sdf_points,
+            settings.mc_samples,
+            settings.sdf_clamp,
+            settings.sdf_views,
+            settings.calibration_levels,
+        )
         out["uncertainty"] = rows + sdf
         scales = [1.0] + (list(settings.single_view_scales) if "corrupted" in protocols else [])
         tracking = [error_tracking_row(run.spec, encode(s), codes, s) for s in dict.fromkeys(scales)]
@@ -229,13 +272,24 @@ def evaluate_encoder(run: EncoderRun, settings: Settings, cache_dir: Path | None
         out["error_tracking"] = with_shape_accuracy(tracking, out["records"])
         out["curves"] = {"latent": curves_to_json(latent_curves), "sdf": curves_to_json(sdf_curves)}
     if "locality" in protocols and not has_cameras(run.world, [k.shape_id for k in run.keys]):
-        log.warning("Table L skipped: the test renders of %s have no cameras (views.npz), so which parts a "
-                    "view hides or crops away is unknown", run.world.root)
+        log.warning(
+            "Table L skipped: the test renders of %s have no cameras (views.npz), so which parts a "
+            "view hides or crops away is unknown",
+            run.world.root,
+        )
     elif "locality" in protocols:
         scale = settings.locality_scale
-        out["locality_views"] = locality_records(run.spec, encode(1.0), encode(scale), run.predictor.decoder,
-                                                 run.world, scale, settings.seed, settings.locality_points,
-                                                 settings.locality_views)
+        out["locality_views"] = locality_records(
+            run.spec,
+            encode(1.0),
+            encode(scale),
+            run.predictor.decoder,
+            run.world,
+            scale,
+            settings.seed,
+            settings.locality_points,
+            settings.locality_views,
+        )
         out["locality"] = summarise_locality(out["locality_views"])
     if "depth" in protocols:
         out["depth"], curves = depth_protocol(run, settings, encode)
@@ -250,31 +304,61 @@ def depth_protocol(run: EncoderRun, settings: Settings, encode: Callable) -> tup
     if not has_cameras(run.world, [k.shape_id for k in run.keys]):
         log.warning("Table D skipped: the test renders of %s have no cameras (views.npz)", run.world.root)
         return [], {}
-    return depth_calibration_rows(run.spec, encode(1.0), run.predictor.decoder, run.world, settings.depth_size,
-                                  settings.depth_methods, settings.depth_codes, settings.depth_steps,
-                                  settings.depth_views, settings.calibration_levels, settings.seed)
+    return depth_calibration_rows(
+        run.spec,
+        encode(1.0),
+        run.predictor.decoder,
+        run.world,
+        settings.depth_size,
+        settings.depth_methods,
+        settings.depth_codes,
+        settings.depth_steps,
+        settings.depth_views,
+        settings.calibration_levels,
+        settings.seed,
+    )
 
 
-def setting_row(run: EncoderRun, settings: Settings, groups, encode, fuse: Callable, method: str,
-                min_scale: float) -> dict:
+def setting_row(
+    run: EncoderRun, settings: Settings, groups, encode, fuse: Callable, method: str, min_scale: float
+) -> dict:
     """One sweep row: single-view and fused multi-view IoU at the configured fusion rule and crop."""
     encodings = encode(min_scale)
-    single = P.summarise(P.single_view_records(run.spec, encodings.first_views(settings.single_view_views),
-                                               run.reconstructor, min_scale))[0]
+    single = P.summarise(
+        P.single_view_records(run.spec, encodings.first_views(settings.single_view_views), run.reconstructor, min_scale)
+    )[0]
     fused = P.multi_view_records(run.spec, encodings, groups, {method: fuse}, run.reconstructor, min_scale, quiet=False)
     if not fused:
-        log.warning("no multi-view instance in %s (every shape has fewer than %d views): the row's multi-view "
-                    "cells are empty", run.world.root, settings.group_size)
+        log.warning(
+            "no multi-view instance in %s (every shape has fewer than %d views): the row's multi-view cells are empty",
+            run.world.root,
+            settings.group_size,
+        )
     multi = P.summarise(fused)[0] if fused else {"iou": math.nan, "cd": math.nan, "n": 0}
-    return {"encoder": run.spec.name, "label": run.spec.label, "fusion": method, "min_scale": float(min_scale),
-            "group_size": settings.group_size, "single_view_iou": single["iou"], "single_view_cd": single["cd"],
-            "multi_view_iou": multi["iou"], "multi_view_cd": multi["cd"], "n_views": single["n"],
-            "n_instances": multi["n"]}
+    return {
+        "encoder": run.spec.name,
+        "label": run.spec.label,
+        "fusion": method,
+        "min_scale": float(min_scale),
+        "group_size": settings.group_size,
+        "single_view_iou": single["iou"],
+        "single_view_cd": single["cd"],
+        "multi_view_iou": multi["iou"],
+        "multi_view_cd": multi["cd"],
+        "n_views": single["n"],
+        "n_instances": multi["n"],
+    }
 
 
-def evaluate_runs(run_dirs: Sequence[str | Path], settings: Settings, cache_dir: Path | None = None,
-                  setting: tuple[Callable, str, float] | None = None, world_dir: str | Path | None = None,
-                  showcase_dir: Path | None = None, temperature: bool = False) -> dict[str, Any]:
+def evaluate_runs(
+    run_dirs: Sequence[str | Path],
+    settings: Settings,
+    cache_dir: Path | None = None,
+    setting: tuple[Callable, str, float] | None = None,
+    world_dir: str | Path | None = None,
+    showcase_dir: Path | None = None,
+    temperature: bool = False,
+) -> dict[str, Any]:
     """Load every run folder's encoder and evaluate them all (see `evaluate_all`)."""
     if not run_dirs:
         raise ValueError("no runs to evaluate: pass runs=[<run folder>, ...] or sweep=<multirun folder>")
@@ -288,16 +372,23 @@ def evaluate_runs(run_dirs: Sequence[str | Path], settings: Settings, cache_dir:
     return result
 
 
-def evaluate_all(runs: Sequence[EncoderRun], settings: Settings, cache_dir: Path | None = None,
-                 setting: tuple[Callable, str, float] | None = None, showcase_dir: Path | None = None,
-                 ) -> dict[str, Any]:
+def evaluate_all(
+    runs: Sequence[EncoderRun],
+    settings: Settings,
+    cache_dir: Path | None = None,
+    setting: tuple[Callable, str, float] | None = None,
+    showcase_dir: Path | None = None,
+) -> dict[str, Any]:
     """Every protocol for every encoder -> {records, summary, uncertainty, curves, rows, runs, settings, seconds}.
 
     With showcase_dir, the first shapes' reconstructions with uncertainty are saved there (see showcase).
     """
     started = time.time()
-    result: dict[str, Any] = {**{key: [] for key in ROW_KEYS}, "curves": {"latent": {}, "sdf": {}, "depth": {}},
-                              "runs": {}}
+    result: dict[str, Any] = {
+        **{key: [] for key in ROW_KEYS},
+        "curves": {"latent": {}, "sdf": {}, "depth": {}},
+        "runs": {},
+    }
     for run in runs:
         log.info("evaluating %s on %d views of %s", run.spec.label, len(run.keys), run.world.root)
         part = evaluate_encoder(run, settings, cache_dir, setting)
@@ -305,13 +396,24 @@ def evaluate_all(runs: Sequence[EncoderRun], settings: Settings, cache_dir: Path
             result[key] += part[key]
         for space, curves in part["curves"].items():
             result["curves"][space].update(curves)
-        result["runs"][run.spec.name] = {"checkpoint": str(run.predictor.checkpoint), "world": str(run.world.root),
-                                         "label": run.spec.label}
+        result["runs"][run.spec.name] = {
+            "checkpoint": str(run.predictor.checkpoint),
+            "world": str(run.world.root),
+            "label": run.spec.label,
+        }
         if showcase_dir is not None and settings.showcase_shapes > 0 and run.only is None:
-            encodings = encode_views(run.predictor, run.world, run.keys, 1.0, settings.seed, cache_dir,
-                                     mask_input=run.mask_input)
-            save_showcase(run, encodings, showcase_dir, settings.group_size, settings.showcase_shapes,
-                          settings.resolution, settings.mc_samples)
+            encodings = encode_views(
+                run.predictor, run.world, run.keys, 1.0, settings.seed, cache_dir, mask_input=run.mask_input
+            )
+            save_showcase(
+                run,
+                encodings,
+                showcase_dir,
+                settings.group_size,
+                settings.showcase_shapes,
+                settings.resolution,
+                settings.mc_samples,
+            )
     if runs and "single_view" in settings.protocols:
         result["records"] += reference_rows(runs[0], settings, cache_dir)
     result["summary"] = P.summarise(result["records"])

@@ -38,13 +38,18 @@ def uncertainty_colours(std: np.ndarray, vmax: float | None = None) -> np.ndarra
 def render_uncertainty(mesh: trimesh.Trimesh, std: np.ndarray, image_size: int = 192) -> np.ndarray:
     """RGB uint8 [S, S, 3] of the mesh from the preview view, each face coloured by its vertices' mean std."""
     face_colours = uncertainty_colours(np.asarray(std)[mesh.faces].mean(axis=1))
-    rgba = render_mesh(mesh, *look_at(image_size=image_size, **PREVIEW_VIEW), image_size,
-                       colour_fn=lambda points, face: face_colours[face])["rgba"]
+    rgba = render_mesh(
+        mesh,
+        *look_at(image_size=image_size, **PREVIEW_VIEW),
+        image_size,
+        colour_fn=lambda points, face: face_colours[face],
+    )["rgba"]
     return on_white(rgba)
 
 
-def save_showcase(run, encodings, out_dir: str | Path, group_size: int, n_shapes: int = 2, resolution: int = 64,
-                  n_samples: int = 10) -> list[Path]:
+def save_showcase(
+    run, encodings, out_dir: str | Path, group_size: int, n_shapes: int = 2, resolution: int = 64, n_samples: int = 10
+) -> list[Path]:
     """Save single-view and fused reconstructions with per-vertex std for the first n_shapes; returns the PNGs."""
     from PIL import Image
 

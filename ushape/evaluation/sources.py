@@ -43,8 +43,9 @@ def latest_runs(root: str | Path = ".") -> list[Path]:
     return sweep_runs(newest.parent) if multirun in newest.resolve().parents else [newest]
 
 
-def resolve_runs(runs: Sequence[str | Path] | None = None, sweep: str | Path | None = None,
-                 root: str | Path = ".") -> list[Path]:
+def resolve_runs(
+    runs: Sequence[str | Path] | None = None, sweep: str | Path | None = None, root: str | Path = "."
+) -> list[Path]:
     """Run folders to evaluate: `runs` as given (each must exist), else `sweep`'s runs, else the newest."""
     if runs:
         paths = [Path(r).expanduser() for r in runs]

@@ -56,8 +56,9 @@ def region_masks(sdf_true: Tensor, band: float = SURFACE_BAND) -> dict[str, Tens
     return {"all": torch.ones_like(near), "surface": near, "non_surface": ~near}
 
 
-def sdf_region_scores(mean: Tensor, var: Tensor, sdf_true: Tensor, band: float = SURFACE_BAND,
-                      var_floor: float = SDF_VAR_FLOOR) -> dict[str, float]:
+def sdf_region_scores(
+    mean: Tensor, var: Tensor, sdf_true: Tensor, band: float = SURFACE_BAND, var_floor: float = SDF_VAR_FLOOR
+) -> dict[str, float]:
     """Mean univariate ES and NLL per region of SDF predictions N(mean, var) [P] against sdf_true [P].
 
     Keys `es_all`, `nll_all`, `es_surface`, ...; a region with no points scores NaN. The variance is
@@ -75,8 +76,17 @@ def sdf_region_scores(mean: Tensor, var: Tensor, sdf_true: Tensor, band: float =
     return out
 
 
-def propagate_to_sdf(decoder, mu: Tensor, var: Tensor, points: Tensor, method: str = "mc", n_samples: int = 10,
-                     seed: int = 0, clamp: float | None = 0.1, bf16: bool = False) -> tuple[Tensor, Tensor]:
+def propagate_to_sdf(
+    decoder,
+    mu: Tensor,
+    var: Tensor,
+    points: Tensor,
+    method: str = "mc",
+    n_samples: int = 10,
+    seed: int = 0,
+    clamp: float | None = 0.1,
+    bf16: bool = False,
+) -> tuple[Tensor, Tensor]:
     """SDF mean and variance [P] at points [P, 3] for one latent Gaussian (mu, var [D]), clamped values.
 
     Monte Carlo clamps every sample before its statistics; the linearised method clamps the mean

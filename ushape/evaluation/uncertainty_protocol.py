@@ -58,8 +58,9 @@ def latent_rows(spec: EncoderSpec, encodings: Encodings, codes: CodeTable, n_lev
     rows, curves = [], {}
     for variant, var in _variants(spec, encodings.var).items():
         report = latent_report(encodings.mu, var, target, n_levels=n_levels)
-        rows.append({"encoder": spec.name, "label": spec.label, "variance": variant, "space": "latent",
-                     "method": "-", **report})
+        rows.append(
+            {"encoder": spec.name, "label": spec.label, "variance": variant, "space": "latent", "method": "-", **report}
+        )
         curves[f"{spec.label} ({variant} var)"] = calibration_curve((encodings.mu - target).abs(), var.sqrt(), n_levels)
     return rows, curves
 
@@ -69,13 +70,20 @@ def error_tracking_row(spec: EncoderSpec, encodings: Encodings, codes: CodeTable
     covariance trace against the squared latent error, at one crop setting (NaN for a constant variance)."""
     target = code_targets(encodings, codes)
     rank_corr = variance_tracks_error(encodings.var, encodings.mu, target) if spec.probabilistic else float("nan")
-    return {"encoder": spec.name, "label": spec.label, "min_scale": float(min_scale), "n": len(encodings.keys),
-            "l2": float(latent_l2(encodings.mu, target)), "var_trace": float(encodings.var.sum(-1).mean()),
-            "rank_corr": float(rank_corr)}
+    return {
+        "encoder": spec.name,
+        "label": spec.label,
+        "min_scale": float(min_scale),
+        "n": len(encodings.keys),
+        "l2": float(latent_l2(encodings.mu, target)),
+        "var_trace": float(encodings.var.sum(-1).mean()),
+        "rank_corr": float(rank_corr),
+    }
 
 
-def pooled_error_tracking_row(spec: EncoderSpec, clean: Encodings, cropped: Encodings, codes: CodeTable,
-                              min_scale: float) -> dict:
+def pooled_error_tracking_row(
+    spec: EncoderSpec, clean: Encodings, cropped: Encodings, codes: CodeTable, min_scale: float
+) -> dict:
     """`error_tracking_row` over the clean and the cropped views together: whether the variance ranks a
     view's error both across shapes and across how much of the object the view shows."""
     both = Encodings(clean.keys + cropped.keys, torch.cat([clean.mu, cropped.mu]), torch.cat([clean.var, cropped.var]))
@@ -92,14 +100,28 @@ def with_shape_accuracy(rows: list[dict], records: list[dict]) -> list[dict]:
         found = [cells.get((row["encoder"], s)) for s in scales]
         found = [f for f in found if f is not None]
         n = sum(f["n"] for f in found)
-        out.append({**row, "iou": sum(f["iou"] * f["n"] for f in found) / n if n else None,
-                    "cd": sum(f["cd"] * f["n"] for f in found) / n if n else None})
+        out.append(
+            {
+                **row,
+                "iou": sum(f["iou"] * f["n"] for f in found) / n if n else None,
+                "cd": sum(f["cd"] * f["n"] for f in found) / n if n else None,
+            }
+        )
     return out
 
 
-def sdf_rows(spec: EncoderSpec, encodings: Encodings, decoder, world: WorldIndex, n_points: int = 1024,
-             n_samples: int = 10, clamp: float | None = 0.1, views_per_shape: int | None = None, n_levels: int = 20,
-             methods: tuple[str, ...] = PROPAGATION_METHODS) -> tuple[list, dict]:
+def sdf_rows(
+    spec: EncoderSpec,
+    encodings: Encodings,
+    decoder,
+    world: WorldIndex,
+    n_points: int = 1024,
+    n_samples: int = 10,
+    clamp: float | None = 0.1,
+    views_per_shape: int | None = None,
+    n_levels: int = 20,
+    methods: tuple[str, ...] = PROPAGATION_METHODS,
+) -> tuple[list, dict]:
     """SDF-space ES / NLL per region and calibration error, per (variance variant, propagation method)."""
     encodings = encodings.first_views(views_per_shape)
     pools: dict[tuple[str, str], list[tuple[Tensor, Tensor, Tensor]]] = {}
@@ -110,23 +132,34 @@ def sdf_rows(spec: EncoderSpec, encodings: Encodings, decoder, world: WorldIndex
         for variant, var in _variants(spec, encodings.var[i : i + 1]).items():
             # The equal-variance baseline by Monte Carlo only: it is the paper's baseline, not a method.
             for method in methods if variant == "predicted" else ("mc",):
-                mean, variance = propagate_to_sdf(decoder, encodings.mu[i], var[0], points, method, n_samples,
-                                                  seed=i, clamp=clamp)
+                mean, variance = propagate_to_sdf(
+                    decoder, encodings.mu[i], var[0], points, method, n_samples, seed=i, clamp=clamp
+                )
                 pools.setdefault((variant, method), []).append((mean, variance, sdf_true))
     rows, curves = [], {}
     for (variant, method), parts in pools.items():
         mean, variance, sdf_true = (torch.cat(t) for t in zip(*parts))
         p, freq = calibration_curve((mean - sdf_true).abs(), variance.sqrt(), n_levels)
-        rows.append({"encoder": spec.name, "label": spec.label, "variance": variant, "space": "sdf",
-                     "method": method, **sdf_region_scores(mean, variance, sdf_true),
-                     "calibration_error": calibration_error(p, freq)})
+        rows.append(
+            {
+                "encoder": spec.name,
+                "label": spec.label,
+                "variance": variant,
+                "space": "sdf",
+                "method": method,
+                **sdf_region_scores(mean, variance, sdf_true),
+                "calibration_error": calibration_error(p, freq),
+            }
+        )
         curves[f"{spec.label} ({variant} var, {method})"] = (p, freq)
     return rows, curves
 
 
 def curves_to_json(curves: dict[str, tuple[Tensor, Tensor]]) -> dict[str, dict[str, list[float]]]:
     """Calibration curves as plain lists, for results.json and the notebook."""
-    return {name: {"p": torch.as_tensor(p).tolist(), "freq": torch.as_tensor(f).tolist()} for name, (p, f) in curves.items()}
+    return {
+        name: {"p": torch.as_tensor(p).tolist(), "freq": torch.as_tensor(f).tolist()} for name, (p, f) in curves.items()
+    }
 
 
 def decoder_dir_of(predictor) -> Path:

@@ -39,8 +39,14 @@ def view_seed(seed: int, shape_id: str, view: int) -> int:
     return (seed * 1_000_003 + zlib.crc32(f"{shape_id}/{view}".encode())) % (2**63 - 1)
 
 
-def corrupted_view(rgba: Tensor, image_size: int, min_scale: float, seed: int, mask_mode: str = "gt_mask",
-                   background_value: float = 1.0) -> Tensor:
+def corrupted_view(
+    rgba: Tensor,
+    image_size: int,
+    min_scale: float,
+    seed: int,
+    mask_mode: str = "gt_mask",
+    background_value: float = 1.0,
+) -> Tensor:
     """Premultiplied RGBA [4, H, W] -> RGB [3, S, S]: a random crop of area in [min_scale, 1], resized, composited.
 
     min_scale = 1 keeps the whole image (the uncorrupted protocol). Deterministic in `seed`.
@@ -100,8 +106,16 @@ def encoder_tag(predictor) -> str:
     return hashlib.sha1(text.encode()).hexdigest()[:16]
 
 
-def encode_views(predictor, world: WorldIndex, keys: Sequence[ViewKey], min_scale: float, seed: int = 0,
-                 cache_dir: Path | None = None, batch_size: int = 32, mask_input: str = "gt_mask") -> Encodings:
+def encode_views(
+    predictor,
+    world: WorldIndex,
+    keys: Sequence[ViewKey],
+    min_scale: float,
+    seed: int = 0,
+    cache_dir: Path | None = None,
+    batch_size: int = 32,
+    mask_input: str = "gt_mask",
+) -> Encodings:
     """Encode every view (cropped to min_scale) with `predictor.encode`; reuse the cache file when present."""
     keys = list(keys)
     cache = None
@@ -117,11 +131,19 @@ def encode_views(predictor, world: WorldIndex, keys: Sequence[ViewKey], min_scal
     mus, vars_ = [], []
     for start in tqdm(range(0, len(keys), batch_size), desc=f"encode (min_scale {min_scale:g})", leave=False):
         batch = keys[start : start + batch_size]
-        images = torch.stack([
-            corrupted_view(load_view(world.image_path(k.shape_id, k.view), mask_input), predictor.image_size, min_scale,
-                           view_seed(seed, k.shape_id, k.view), predictor.mask_mode, predictor.background_value)
-            for k in batch
-        ])
+        images = torch.stack(
+            [
+                corrupted_view(
+                    load_view(world.image_path(k.shape_id, k.view), mask_input),
+                    predictor.image_size,
+                    min_scale,
+                    view_seed(seed, k.shape_id, k.view),
+                    predictor.mask_mode,
+                    predictor.background_value,
+                )
+                for k in batch
+            ]
+        )
         mu, var = predictor.encode(images)
         mus.append(mu.float())
         vars_.append(var.float())

@@ -140,7 +140,5 @@ def fuse_bayesian_k(mu: Tensor, var: Tensor, k: int, var_floor: float = 1e-8) ->
         k = n_views
     kept = select_lowest_trace(var, k)
     index = kept.unsqueeze(-1).expand(*kept.shape, mu.shape[-1])
-    fused_mu, fused_var = product_of_gaussians(
-        torch.gather(mu, -2, index), torch.gather(var, -2, index), var_floor
-    )
+    fused_mu, fused_var = product_of_gaussians(torch.gather(mu, -2, index), torch.gather(var, -2, index), var_floor)
     return FusedCode(fused_mu, fused_var, kept)

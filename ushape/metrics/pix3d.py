@@ -119,8 +119,9 @@ class ShapeReference:
     points: np.ndarray  # [N, 3] in the unit box
 
 
-def reference_from_mesh(mesh: trimesh.Trimesh, resolution: int = PIX3D_VOXELS, n_points: int = PIX3D_POINTS,
-                        seed: int = 0) -> ShapeReference:
+def reference_from_mesh(
+    mesh: trimesh.Trimesh, resolution: int = PIX3D_VOXELS, n_points: int = PIX3D_POINTS, seed: int = 0
+) -> ShapeReference:
     """Normalise a watertight ground-truth mesh by its box; voxelise it by ray parity; sample its surface."""
     frame = box_frame(mesh.vertices)
     occupancy = voxelise(lambda p: mesh.contains(p), frame, resolution)

@@ -16,7 +16,9 @@ from ushape.mesh.extraction import DEFAULT_CHUNK, evaluate_sdf
 InsideFn = Callable[[np.ndarray], np.ndarray]
 
 
-def chamfer_deepsdf(mesh_gt: trimesh.Trimesh, mesh_pred: trimesh.Trimesh, n_points: int = 30000, seed: int = 0) -> float:
+def chamfer_deepsdf(
+    mesh_gt: trimesh.Trimesh, mesh_pred: trimesh.Trimesh, n_points: int = 30000, seed: int = 0
+) -> float:
     """DeepSDF's Chamfer distance: mean squared NN distance gt->pred plus pred->gt, on surface samples.
 
     As in DeepSDF's evaluation, `n_points` points are sampled uniformly (by area) on each surface;
@@ -66,13 +68,17 @@ def mesh_inside_fn(mesh: trimesh.Trimesh) -> InsideFn:
     """Inside test of a watertight mesh (ray parity; embree-accelerated when embreex is installed)."""
     if not mesh.is_watertight:
         # Ray parity still holds away from the holes, so score the shape rather than stop a run.
-        warnings.warn(f"mesh with {len(mesh.faces)} faces is not watertight: its inside test (and IoU) "
-                      "may be wrong near the holes", stacklevel=2)
+        warnings.warn(
+            f"mesh with {len(mesh.faces)} faces is not watertight: its inside test (and IoU) "
+            "may be wrong near the holes",
+            stacklevel=2,
+        )
     return lambda points: mesh.contains(np.asarray(points, dtype=np.float64))
 
 
 def sdf_inside_fn(sdf_fn: Callable[[torch.Tensor], torch.Tensor], chunk: int = DEFAULT_CHUNK) -> InsideFn:
     """Inside test of an SDF callable (points [P, 3] tensor -> sdf [P]): inside where sdf < 0."""
+
     def inside(points: np.ndarray) -> np.ndarray:
         sdf = evaluate_sdf(sdf_fn, torch.as_tensor(np.asarray(points), dtype=torch.float32), chunk)
         return (sdf < 0).numpy()

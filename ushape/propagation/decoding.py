@@ -13,9 +13,11 @@ from ushape.mesh.extraction import DEFAULT_CHUNK
 
 Decoder = Callable[[Tensor, Tensor], Tensor]  # (xyz [..., 3], z [..., D]) -> sdf [...]
 
+
 def autocast(bf16: bool, device: torch.device) -> ContextManager:
     """bf16 autocast on `device` when asked, else nothing (see `decoder_autocast`)."""
     return decoder_autocast(device, bf16)
+
 
 def check_latent_gaussian(mu: Tensor, var: Tensor) -> None:
     """Raise a ValueError unless mu, var are one diagonal Gaussian over the latent code: [D] each, var >= 0."""
@@ -28,21 +30,27 @@ def check_latent_gaussian(mu: Tensor, var: Tensor) -> None:
     if (var < 0).any():
         raise ValueError("var must be >= 0 (a variance, not a log-variance or a standard deviation)")
 
+
 def check_code_size(decoder: Decoder, size: int) -> None:
     """Raise a ValueError if the decoder declares a latent size (`latent_size`) other than `size`."""
     expected = getattr(decoder, "latent_size", None)
     if expected is not None and int(expected) != size:
-        raise ValueError(f"the code has {size} dimensions but the decoder takes {expected}: "
-                         "was it encoded for another decoder (or another latent basis)?")
+        raise ValueError(
+            f"the code has {size} dimensions but the decoder takes {expected}: "
+            "was it encoded for another decoder (or another latent basis)?"
+        )
+
 
 def check_points(points: Tensor) -> None:
     """Raise a ValueError unless points is [P, 3]."""
     if points.ndim != 2 or points.shape[-1] != 3:
         raise ValueError(f"points must have shape [P, 3], got {tuple(points.shape)}")
 
+
 def check_chunk(chunk: int) -> None:
     if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
         raise ValueError(f"chunk (points per decoder pass) must be a positive integer, got {chunk!r}")
+
 
 def decode_points(
     decoder: Decoder,
@@ -69,6 +77,7 @@ def decode_points(
             block = points[start : start + chunk]
             out[start : start + block.shape[0]] = decoder(block, z) if folded is None else folded.sdf(block)
     return out
+
 
 def output_dtype(points: Tensor, bf16: bool) -> torch.dtype:
     """SDFs come back in the points' dtype; bf16 runs come back in float32 for the statistics."""

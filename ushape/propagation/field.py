@@ -118,8 +118,9 @@ def field_uncertainty(
     if region == "narrow_band":
         if bf16:
             raise ValueError("the narrow band runs in fp32; bf16 is only offered for the dense grid")
-        band = narrow_band_field(decoder, mu, var, resolution, method, n_samples, generator,
-                                 chunk=chunk or DEFAULT_CHUNK)
+        band = narrow_band_field(
+            decoder, mu, var, resolution, method, n_samples, generator, chunk=chunk or DEFAULT_CHUNK
+        )
         return band.mean, band.variance
     if region != "dense":
         raise ValueError(f"region must be 'dense' or 'narrow_band', got {region!r}")

@@ -38,8 +38,8 @@ def propagate_mc(
 
     All M codes meet each chunk of points in one decoder pass (codes [M, 1, D] against points
     [1, Pc, 3]), so a pass holds M * chunk rows; a few thousand rows per pass ran fastest
-    on CPU. With return_samples, also returns the SDF samples [M, P]. Under bf16 the decoder's outputs carry ~3 significant digits, which
-    limits how small a variance can be resolved (relative to the SDF's magnitude).
+    on CPU. With return_samples, also returns the SDF samples [M, P]. Under bf16 the decoder's outputs
+    carry ~3 significant digits, which limits how small a variance can be resolved (relative to the SDF's magnitude).
     """
     if isinstance(n_samples, bool) or not isinstance(n_samples, int) or n_samples < 2:
         raise ValueError(

@@ -61,8 +61,11 @@ def build_parser() -> argparse.ArgumentParser:
     source.add_argument("--run", help="run folder of `python train.py` (default: the newest encoder run)")
     source.add_argument("--checkpoint", help="an encoder .ckpt instead of a run folder")
     parser.add_argument("--root", default=".", help="where outputs/runs is searched for the newest run")
-    parser.add_argument("--fit-temperature", action="store_true",
-                        help="fit T (var' = T var) on the run's val split and store temperature.json, then exit")
+    parser.add_argument(
+        "--fit-temperature",
+        action="store_true",
+        help="fit T (var' = T var) on the run's val split and store temperature.json, then exit",
+    )
     parser.add_argument("--temperature", action="store_true", help="apply the stored temperature")
     parser.add_argument("--fusion", default="bayesian", help="average | bayesian | bayesian_k (conf/fusion)")
     parser.add_argument("--k", type=int, default=None, help="views kept by bayesian_k (default: conf, 4)")
@@ -70,11 +73,19 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--samples", type=int, default=10, help="codes for --uncertainty mc")
     parser.add_argument("--resolution", type=int, default=128, help="marching-cubes grid points per axis")
     parser.add_argument("--depth-size", type=int, default=64, help="depth-map pixels per side")
-    parser.add_argument("--depth-method", default="implicit", choices=DEPTH_METHODS,
-                        help="depth std: implicit (trace the mean code once, first order) or mc (trace M sampled codes)")
+    parser.add_argument(
+        "--depth-method",
+        default="implicit",
+        choices=DEPTH_METHODS,
+        help="depth std: implicit (trace the mean code once, first order) or mc (trace M sampled codes)",
+    )
     parser.add_argument("--depth-codes", type=int, default=10, help="codes M traced per depth map (--depth-method mc)")
-    parser.add_argument("--std-max", type=float, default=None,
-                        help="top of the colour scale (default: the 99th percentile of the mesh's stds)")
+    parser.add_argument(
+        "--std-max",
+        type=float,
+        default=None,
+        help="top of the colour scale (default: the 99th percentile of the mesh's stds)",
+    )
     parser.add_argument("--cmap", default="inferno", help="matplotlib colormap for the std colours")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default=None, help=f"output folder (default {DEFAULT_OUT}/<time>)")
@@ -95,21 +106,32 @@ def main(argv: Sequence[str] | None = None) -> int:
         fusion = build_fusion(args.fusion, args.k)
         predictor = load_predictor(source, temperature=args.temperature, root=args.root)
         settings = ReconstructionSettings(
-            resolution=args.resolution, uncertainty=args.uncertainty, n_samples=args.samples,
-            depth_size=args.depth_size, depth_method=args.depth_method, depth_codes=args.depth_codes,
-            std_max=args.std_max, cmap=args.cmap, seed=args.seed,
+            resolution=args.resolution,
+            uncertainty=args.uncertainty,
+            n_samples=args.samples,
+            depth_size=args.depth_size,
+            depth_method=args.depth_method,
+            depth_codes=args.depth_codes,
+            std_max=args.std_max,
+            cmap=args.cmap,
+            seed=args.seed,
         )
         out = Path(args.out) if args.out else DEFAULT_OUT / time.strftime("%Y-%m-%d_%H-%M-%S")
         summary = reconstruct(predictor, files, fusion, out, settings)
     except EmptySurfaceError as err:
-        print(f"error: the fused code's SDF has no surface in [-1, 1]^3 ({err}); try other views or --fusion", file=sys.stderr)
+        print(
+            f"error: the fused code's SDF has no surface in [-1, 1]^3 ({err}); try other views or --fusion",
+            file=sys.stderr,
+        )
         return 2
     except (FileNotFoundError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     kept = summary["fused"]["kept"]
-    print(f"{len(summary['views'])} view(s), fused {kept} with {summary['fusion']}; "
-          f"mesh {summary['mesh']['vertices']} vertices -> {out}")
+    print(
+        f"{len(summary['views'])} view(s), fused {kept} with {summary['fusion']}; "
+        f"mesh {summary['mesh']['vertices']} vertices -> {out}"
+    )
     for name, path in summary["files"].items():
         print(f"  {name}: {path}")
     return 0

@@ -116,8 +116,9 @@ def depth_uncertainty_implicit(
     chunk: int = DEFAULT_CHUNK,
 ) -> DepthStats:
     """Depth of the mean code's surface and its first-order std [H, W] for one camera (see the _views form)."""
-    return depth_uncertainty_implicit_views(decoder, mu, var, [(K, world_to_cam)], image_hw, steps, eps,
-                                            min_cosine, chunk)[0]
+    return depth_uncertainty_implicit_views(
+        decoder, mu, var, [(K, world_to_cam)], image_hw, steps, eps, min_cosine, chunk
+    )[0]
 
 
 def depth_stats(

@@ -64,7 +64,11 @@ def write_mesh_files(
     std = np.asarray(std, np.float32).reshape(-1)
     top = colour_range(std, std_max)
     coloured = coloured_mesh(mesh, std, top, cmap)
-    paths = {"ply": out_dir / f"{stem}.ply", "glb": out_dir / f"{stem}.glb", "colour_bar": out_dir / f"{stem}_colourbar.png"}
+    paths = {
+        "ply": out_dir / f"{stem}.ply",
+        "glb": out_dir / f"{stem}.glb",
+        "colour_bar": out_dir / f"{stem}_colourbar.png",
+    }
     coloured.vertex_attributes[PLY_STD] = std
     atomic.write_bytes(paths["ply"], coloured.export(file_type="ply"))
     del coloured.vertex_attributes[PLY_STD]

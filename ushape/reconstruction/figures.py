@@ -77,8 +77,10 @@ def depth_figure(image: Tensor, stats: DepthStats, path: str | Path, title: str 
     # A few pixels on depth edges (codes hitting different parts) would set the std scale alone.
     std = stats.std.numpy()
     top = float(np.nanpercentile(std, 98)) if np.isfinite(std).any() else 1.0
-    for ax, data, name, cmap, vmax in ((axes[1], stats.mean.numpy(), "expected depth", "viridis", None),
-                                       (axes[2], std, "depth std (98th pct. = top)", "inferno", top or None)):
+    for ax, data, name, cmap, vmax in (
+        (axes[1], stats.mean.numpy(), "expected depth", "viridis", None),
+        (axes[2], std, "depth std (98th pct. = top)", "inferno", top or None),
+    ):
         shown = ax.imshow(data, cmap=cmap, vmin=0.0 if vmax else None, vmax=vmax)
         ax.set_title(name, fontsize=9)
         fig.colorbar(shown, ax=ax, fraction=0.046)

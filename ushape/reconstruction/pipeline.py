@@ -112,12 +112,14 @@ def reconstruct(
     decoder = predictor.decoder
     with timer("mesh"), frozen(decoder):
         coarse = min(32, settings.resolution)  # extract_mesh's default coarse grid, capped for small meshes
-        mesh, stats = extract_mesh(code_sdf_fn(decoder, fused.mu), settings.resolution, "coarse_to_fine",
-                                   coarse_resolution=coarse)
+        mesh, stats = extract_mesh(
+            code_sdf_fn(decoder, fused.mu), settings.resolution, "coarse_to_fine", coarse_resolution=coarse
+        )
     with timer("vertex_uncertainty"):
         vertices = torch.as_tensor(np.asarray(mesh.vertices), dtype=torch.float32)
-        std = vertex_uncertainty(decoder, fused.mu, fused.var, vertices, settings.uncertainty,
-                                 settings.n_samples, generator).numpy()
+        std = vertex_uncertainty(
+            decoder, fused.mu, fused.var, vertices, settings.uncertainty, settings.n_samples, generator
+        ).numpy()
     with timer("write_mesh"):
         files = write_mesh_files(mesh, std, out_dir, "mesh", settings.std_max, settings.cmap)
     with timer("overview_figure"):
@@ -131,8 +133,24 @@ def reconstruct(
         depth = write_depth_maps(views, images, cameras, out_dir, settings)
     with timer("visibility"):  # only where the view's camera is known: a render of the world
         seen = [hidden_over_visible(mesh, std, w2c) if kind == "render" else None for _, w2c, kind in cameras]
-    return write_summary(out_dir, predictor, fusion, settings, paths, skipped, var, fused, mesh, std, stats,
-                         files, overview, depth, seen, timer.seconds)
+    return write_summary(
+        out_dir,
+        predictor,
+        fusion,
+        settings,
+        paths,
+        skipped,
+        var,
+        fused,
+        mesh,
+        std,
+        stats,
+        files,
+        overview,
+        depth,
+        seen,
+        timer.seconds,
+    )
 
 
 def depth_maps(
@@ -151,8 +169,16 @@ def depth_maps(
     mc = settings.depth_method == "mc"
     codes = sample_codes(fused.mu, fused.var, settings.depth_codes, generator) if mc else None
     size = settings.depth_size
-    return depth_stats(predictor.decoder, fused.mu, fused.var, [c[:2] for c in cameras], (size, size),
-                       settings.depth_method, codes, settings.depth_steps)
+    return depth_stats(
+        predictor.decoder,
+        fused.mu,
+        fused.var,
+        [c[:2] for c in cameras],
+        (size, size),
+        settings.depth_method,
+        codes,
+        settings.depth_steps,
+    )
 
 
 def write_depth_maps(
@@ -166,22 +192,41 @@ def write_depth_maps(
     records = []
     for i, ((K, w2c, camera), stats) in enumerate(zip(cameras, views)):
         npz, png = out_dir / f"depth_{i:02d}.npz", out_dir / f"depth_{i:02d}.png"
-        atomic.save_npz(npz, mean=stats.mean.numpy(), std=stats.std.numpy(), hit_rate=stats.hit_rate.numpy(),
-                        K=K, world_to_cam=w2c)
+        atomic.save_npz(
+            npz, mean=stats.mean.numpy(), std=stats.std.numpy(), hit_rate=stats.hit_rate.numpy(), K=K, world_to_cam=w2c
+        )
         depth_figure(images[i], stats, png, f"view {i} ({camera} camera, {settings.depth_method})")
         hit = stats.hit_rate > 0
-        records.append({"camera": camera, "method": settings.depth_method,
-                        "codes": settings.depth_codes if settings.depth_method == "mc" else None,
-                        "npz": str(npz), "png": str(png),
-                        "mean_depth_std": float(stats.std[hit].mean()) if hit.any() else None,
-                        "hit_pixels": int(hit.sum())})
+        records.append(
+            {
+                "camera": camera,
+                "method": settings.depth_method,
+                "codes": settings.depth_codes if settings.depth_method == "mc" else None,
+                "npz": str(npz),
+                "png": str(png),
+                "mean_depth_std": float(stats.std[hit].mean()) if hit.any() else None,
+                "hit_pixels": int(hit.sum()),
+            }
+        )
     return records
 
 
 def write_summary(
-    out_dir: Path, predictor: Predictor, fusion: Fusion, settings: ReconstructionSettings, paths: Sequence[Path],
-    skipped: Sequence[tuple[Path, str]], var: Tensor, fused: FusedCode, mesh: trimesh.Trimesh,
-    std: np.ndarray, stats: Any, files: dict, overview: Path, depth: list[dict], seen: list[dict | None],
+    out_dir: Path,
+    predictor: Predictor,
+    fusion: Fusion,
+    settings: ReconstructionSettings,
+    paths: Sequence[Path],
+    skipped: Sequence[tuple[Path, str]],
+    var: Tensor,
+    fused: FusedCode,
+    mesh: trimesh.Trimesh,
+    std: np.ndarray,
+    stats: Any,
+    files: dict,
+    overview: Path,
+    depth: list[dict],
+    seen: list[dict | None],
     seconds: dict[str, float],
 ) -> dict[str, Any]:
     """summary.json: inputs, per-view uncertainty (trace of var), fusion's kept views, mesh, timings, paths."""
@@ -194,15 +239,25 @@ def write_summary(
         "depth_method": settings.depth_method,
         "settings": asdict(settings),
         "views": [
-            {"image": str(p), "trace_var": float(var[i].sum()), "kept": i in kept, "depth": depth[i],
-             "visibility": seen[i]}
+            {
+                "image": str(p),
+                "trace_var": float(var[i].sum()),
+                "kept": i in kept,
+                "depth": depth[i],
+                "visibility": seen[i],
+            }
             for i, p in enumerate(paths)
         ],
         "skipped": [{"image": str(p), "reason": why} for p, why in skipped],
         "fused": {"trace_var": float(fused.var.sum()), "kept": sorted(kept)},
-        "mesh": {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "std_mean": float(np.mean(std)),
-                 "std_max_value": float(np.max(std)), "decoder_evaluations": stats.evaluations,
-                 "dense_evaluations": stats.dense_evaluations},
+        "mesh": {
+            "vertices": len(mesh.vertices),
+            "faces": len(mesh.faces),
+            "std_mean": float(np.mean(std)),
+            "std_max_value": float(np.max(std)),
+            "decoder_evaluations": stats.evaluations,
+            "dense_evaluations": stats.dense_evaluations,
+        },
         "files": {**files, "overview": str(overview)},
         "seconds": seconds,
     }

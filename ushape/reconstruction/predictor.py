@@ -59,7 +59,9 @@ def latest_run(root: str | Path = ".") -> Path:
         if stage == "encoder":
             candidates.append(summary)
     if not candidates:
-        raise FileNotFoundError(f"no finished encoder run (run.json with stage=encoder) under {runs_dir}: {NO_RUN_HINT}")
+        raise FileNotFoundError(
+            f"no finished encoder run (run.json with stage=encoder) under {runs_dir}: {NO_RUN_HINT}"
+        )
     return max(candidates, key=lambda p: p.stat().st_mtime).parent
 
 
@@ -78,8 +80,10 @@ def resolve_checkpoint(source: str | Path) -> tuple[Path, Path | None]:
         # must never evaluate the checkpoint of the folder it was copied from.
         own = source / CHECKPOINT_DIR / Path(recorded).name
         if not own.is_file():
-            raise FileNotFoundError(f"run folder {source} has no {CHECKPOINT_DIR}/{own.name}, the checkpoint its "
-                                    f"{RUN_SUMMARY} names (deleted, or the folder was copied without it): {NO_RUN_HINT}")
+            raise FileNotFoundError(
+                f"run folder {source} has no {CHECKPOINT_DIR}/{own.name}, the checkpoint its "
+                f"{RUN_SUMMARY} names (deleted, or the folder was copied without it): {NO_RUN_HINT}"
+            )
         return own, source
     for name in DEFAULT_CHECKPOINTS:
         if (source / name).is_file():
@@ -125,8 +129,10 @@ def input_settings(checkpoint_blob: dict, config: dict) -> tuple[int, str]:
     data = dict(checkpoint_blob.get("datamodule_hyper_parameters") or {})
     data.update((config.get("stage2") or {}).get("data") or {})
     if "image_size" not in data:
-        raise ValueError("cannot tell the model's input size: pass the run folder (with .hydra/config.yaml) "
-                         "or a checkpoint trained with EncoderDataModule")
+        raise ValueError(
+            "cannot tell the model's input size: pass the run folder (with .hydra/config.yaml) "
+            "or a checkpoint trained with EncoderDataModule"
+        )
     return int(data["image_size"]), str(data.get("mask_mode", "gt_mask"))
 
 
@@ -157,8 +163,10 @@ class Predictor:
         if images.ndim != 4 or images.shape[1] != 3:
             raise ValueError(f"images must be [V, 3, H, W] RGB in [0, 1], got {tuple(images.shape)}")
         if images.shape[-2:] != (self.image_size, self.image_size):
-            raise ValueError(f"images are {tuple(images.shape[-2:])}, the model takes {self.image_size}px: "
-                             "use `prepare` or `load_images`")
+            raise ValueError(
+                f"images are {tuple(images.shape[-2:])}, the model takes {self.image_size}px: "
+                "use `prepare` or `load_images`"
+            )
         self.model.eval()
         mu, logvar = self.model(images.float())
         var = logvar.exp()
@@ -176,16 +184,23 @@ class Predictor:
             try:
                 rgba = load_rgba(path)
                 if max(rgba.shape[-2:]) * SMALLEST_UPSCALE < self.image_size:
-                    log.warning("%s is only %dx%d px, the model sees %d px: upsampling it adds no detail, "
-                                "expect a vague shape", path, rgba.shape[-1], rgba.shape[-2], self.image_size)
+                    log.warning(
+                        "%s is only %dx%d px, the model sees %d px: upsampling it adds no detail, expect a vague shape",
+                        path,
+                        rgba.shape[-1],
+                        rgba.shape[-2],
+                        self.image_size,
+                    )
                 images.append(self.prepare(rgba))
                 kept.append(Path(path))
             except (ValueError, FileNotFoundError) as err:
                 log.warning("skipped %s: %s", path, err)
                 skipped.append((Path(path), str(err)))
         if not images:
-            raise ValueError(f"none of the {len(paths)} input image(s) could be read: "
-                             + "; ".join(f"{p}: {why}" for p, why in skipped))
+            raise ValueError(
+                f"none of the {len(paths)} input image(s) could be read: "
+                + "; ".join(f"{p}: {why}" for p, why in skipped)
+            )
         return torch.stack(images), kept, skipped
 
 
@@ -206,7 +221,9 @@ def collect_inputs(inputs: Iterable[str | Path]) -> list[Path]:
         path = Path(item).expanduser()
         if path.is_dir():
             # Hidden files are no views: macOS's ._x.png, or the temporary file of an interrupted write.
-            found = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+            found = sorted(
+                p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith(".")
+            )
             if not found:
                 raise FileNotFoundError(f"folder {path} holds no {'/'.join(IMAGE_SUFFIXES)} images")
             files += found
@@ -227,7 +244,8 @@ def trained_decoder(blob: dict, checkpoint: Path, run_dir: Path | None) -> Path:
         raise FileNotFoundError(
             f"the stage-1 decoder that {checkpoint} was trained against is gone: not at {recorded}"
             + (" nor at the same place under the outputs/ folder holding the run" if run_dir else "")
-            + "; restore that folder (a retrained decoder would not match this encoder)")
+            + "; restore that folder (a retrained decoder would not match this encoder)"
+        )
     return path
 
 
@@ -247,8 +265,9 @@ def load_predictor(
     blob = load_checkpoint(checkpoint)
     config = run_config(run_dir)
     image_size, mask_mode = input_settings(blob, config)
-    model = EncoderModule.load_from_checkpoint(checkpoint, map_location="cpu", weights_only=False,
-                                               decoder_path=str(trained_decoder(blob, checkpoint, run_dir)))
+    model = EncoderModule.load_from_checkpoint(
+        checkpoint, map_location="cpu", weights_only=False, decoder_path=str(trained_decoder(blob, checkpoint, run_dir))
+    )
     model.eval()
     summary = read_summary(run_dir) if run_dir else {}
     world = relocated(summary["world"], run_dir) if summary.get("world") else None

@@ -21,8 +21,11 @@ def visible_vertices(mesh: trimesh.Trimesh, centre: np.ndarray, tolerance: float
 
 
 def hidden_over_visible(mesh: trimesh.Trimesh, std: np.ndarray, world_to_cam: np.ndarray) -> dict:
-    """{"visible_vertices", "hidden_vertices", "std_hidden_over_visible"} (ratio of medians; None if either set is empty)."""
+    """{"visible_vertices", "hidden_vertices", "std_hidden_over_visible"}: a ratio of medians (None: a set is empty)."""
     visible = visible_vertices(mesh, camera_centre(world_to_cam))
     ratio = median_ratio(np.asarray(std, dtype=np.float64), ~visible, visible)
-    return {"visible_vertices": int(visible.sum()), "hidden_vertices": int((~visible).sum()),
-            "std_hidden_over_visible": ratio}
+    return {
+        "visible_vertices": int(visible.sum()),
+        "hidden_vertices": int((~visible).sum()),
+        "std_hidden_over_visible": ratio,
+    }

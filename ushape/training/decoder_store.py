@@ -100,8 +100,9 @@ def wait_until_complete(decoder_dir: Path, poll_s: float = 1.0) -> None:
         time.sleep(poll_s)
 
 
-def ensure_decoder(cfg: DictConfig, train: Callable[[Path], None], lock_timeout_s: float = -1,
-                   main: bool = True) -> Path:
+def ensure_decoder(
+    cfg: DictConfig, train: Callable[[Path], None], lock_timeout_s: float = -1, main: bool = True
+) -> Path:
     """Return the finished decoder folder for `cfg`, calling `train(folder)` only if none exists yet.
 
     main=False is another rank of a DDP run whose rank 0 holds the lock: it calls `train` too (to join
@@ -114,8 +115,9 @@ def ensure_decoder(cfg: DictConfig, train: Callable[[Path], None], lock_timeout_
             log.info("Reusing the stage-1 decoder in %s", folder)
             return folder
         # Not trusted, not thrown away: rewritten from the last checkpoint (no epoch is trained again).
-        log.warning("the finished stage-1 decoder in %s is damaged (%s); rewriting it from its last checkpoint",
-                    folder, problem)
+        log.warning(
+            "the finished stage-1 decoder in %s is damaged (%s); rewriting it from its last checkpoint", folder, problem
+        )
         with FileLock(str(folder) + ".lock", timeout=lock_timeout_s):
             if folder_problem(folder) is not None:
                 (folder / DONE_FILE).unlink(missing_ok=True)

@@ -30,8 +30,15 @@ EMPTY_NOTE = "empty_surface.txt"
 FusionRule = Callable[[Tensor, Tensor], FusedCode]  # (mu [V, D], var [V, D]) -> fused Gaussian
 
 
-def write_demo_meshes(checkpoint: str | Path, world: WorldIndex, out_dir: str | Path, shapes: int = 1,
-                      resolution: int = 96, split: str = "val", fusion: FusionRule | None = None) -> Path | None:
+def write_demo_meshes(
+    checkpoint: str | Path,
+    world: WorldIndex,
+    out_dir: str | Path,
+    shapes: int = 1,
+    resolution: int = 96,
+    split: str = "val",
+    fusion: FusionRule | None = None,
+) -> Path | None:
     """Reconstruct `shapes` held-out shapes from 1 and from all views into out_dir; None if shapes = 0.
 
     A code with no surface (an undertrained encoder) leaves an `empty_surface.txt` saying so, not a crash.

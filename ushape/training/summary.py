@@ -28,8 +28,12 @@ def print_config(cfg: DictConfig, save_to: Path | None = None) -> None:
 def print_summary(summary: Mapping[str, Any], out_dir: Path) -> None:
     lines = [f"Run folder:   {out_dir}"]
     labels = {
-        "world": "Data:", "decoder_dir": "Decoder:", "encoder_checkpoint": "Encoder:",
-        "tensorboard": "TensorBoard:", "meshes": "Meshes:", "seconds": "Seconds:",
+        "world": "Data:",
+        "decoder_dir": "Decoder:",
+        "encoder_checkpoint": "Encoder:",
+        "tensorboard": "TensorBoard:",
+        "meshes": "Meshes:",
+        "seconds": "Seconds:",
     }
     lines += [f"{label:<13} {summary[key]}" for key, label in labels.items() if key in summary]
     if "tensorboard" in summary:
@@ -51,7 +55,11 @@ def discard_if_bookkeeping_only(run_dir: Path) -> bool:
         return False
     for path in run_dir.rglob("*"):
         relative = path.relative_to(run_dir)
-        if path.is_file() and relative.parts[0] not in BOOKKEEPING and not (len(relative.parts) == 1 and path.suffix == ".log"):
+        if (
+            path.is_file()
+            and relative.parts[0] not in BOOKKEEPING
+            and not (len(relative.parts) == 1 and path.suffix == ".log")
+        ):
             return False
     import shutil
 
@@ -62,5 +70,3 @@ def discard_if_bookkeeping_only(run_dir: Path) -> bool:
         except OSError:
             break
     return True
-
-

@@ -86,7 +86,9 @@ def _train(cfg: DictConfig, out_dir: Path, main: bool) -> float | None:
     summary: dict[str, Any] = {"stage": cfg.stage, "world": str(world.root.resolve()), "decoder_dir": str(decoder_dir)}
     metric = None
     if cfg.stage == "encoder":
-        coded_dir = ensure_codes(decoder_dir, cfg.stage2.get("codes", "autodecoder"), world.root, _plain(cfg.stage1.latent_optim))
+        coded_dir = ensure_codes(
+            decoder_dir, cfg.stage2.get("codes", "autodecoder"), world.root, _plain(cfg.stage1.latent_optim)
+        )
         latent_dir = ensure_basis(coded_dir, cfg.stage2.get("latent_basis", "identity"))
         if latent_dir != decoder_dir:
             summary["latent_basis_dir"] = str(latent_dir)
@@ -94,8 +96,13 @@ def _train(cfg: DictConfig, out_dir: Path, main: bool) -> float | None:
         if not main:
             return None
         summary["encoder_checkpoint"] = str(checkpoint)
-        meshes = write_demo_meshes(checkpoint, world, out_dir / "meshes", **_plain(cfg.stage2.get("demo_meshes") or {}),
-                                   fusion=instantiate(cfg.fusion) if cfg.get("fusion") else None)
+        meshes = write_demo_meshes(
+            checkpoint,
+            world,
+            out_dir / "meshes",
+            **_plain(cfg.stage2.get("demo_meshes") or {}),
+            fusion=instantiate(cfg.fusion) if cfg.get("fusion") else None,
+        )
         if meshes is not None:
             summary["meshes"] = str(meshes)
         summary["tensorboard"] = str(out_dir / "tensorboard")
@@ -114,8 +121,12 @@ def build_world(cfg: DictConfig) -> WorldIndex:
     """Instantiate the `data` config (synthetic, shapenet, ...) and build or validate its cache."""
     started = time.time()
     world = instantiate(cfg.data).build()
-    log.info("data ready in %.1f s: %s (%s)", time.time() - started, world.root,
-             ", ".join(f"{k} {len(v)}" for k, v in world.splits.items()))
+    log.info(
+        "data ready in %.1f s: %s (%s)",
+        time.time() - started,
+        world.root,
+        ", ".join(f"{k} {len(v)}" for k, v in world.splits.items()),
+    )
     return world
 
 

@@ -21,7 +21,9 @@ from ushape.data.sampling import sample_points
 
 def away_from_surface(mesh, points, margin=0.01):
     """Bool [N]: the point is at least `margin` from every triangle."""
-    squared, _, _ = igl.point_mesh_squared_distance(points, np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64))
+    squared, _, _ = igl.point_mesh_squared_distance(
+        points, np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
+    )
     return squared >= margin**2
 
 
@@ -35,10 +37,13 @@ def test_known_answer_meshes_get_their_stated_signs(make):
     assert np.mean(inside == case.solid(points[away])) >= 0.99, case.answer
 
 
-@pytest.mark.parametrize("make, deep_point", [
-    (sign_cases.cabinet, [0.3, 0.33, -0.43]),  # at the back of the upper right cubby
-    (sign_cases.drawer_table, [0.0, 0.31, -0.2]),  # at the back of the shallow drawer
-])
+@pytest.mark.parametrize(
+    "make, deep_point",
+    [
+        (sign_cases.cabinet, [0.3, 0.33, -0.43]),  # at the back of the upper right cubby
+        (sign_cases.drawer_table, [0.0, 0.31, -0.2]),  # at the back of the shallow drawer
+    ],
+)
 def test_deep_compartments_are_outside_although_few_rays_escape(make, deep_point):
     case = make()
     point = np.array([deep_point])
@@ -78,13 +83,15 @@ def test_low_confidence_is_rejected_with_the_reason(rng):
 
 def test_clean_triangles_merges_vertices_and_drops_duplicate_and_degenerate_faces():
     vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 0, 0], [0, 0, 1], [2, 0, 0]], float)
-    faces = np.array([
-        [0, 1, 2],  # kept
-        [0, 2, 3],  # the same triangle the other way round (vertex 3 == vertex 1): dropped
-        [0, 1, 4],  # kept
-        [0, 1, 5],  # zero area (collinear): dropped
-        [0, 3, 4],  # the same as [0, 1, 4] once vertices merge: dropped
-    ])
+    faces = np.array(
+        [
+            [0, 1, 2],  # kept
+            [0, 2, 3],  # the same triangle the other way round (vertex 3 == vertex 1): dropped
+            [0, 1, 4],  # kept
+            [0, 1, 5],  # zero area (collinear): dropped
+            [0, 3, 4],  # the same as [0, 1, 4] once vertices merge: dropped
+        ]
+    )
     v, f = clean_triangles(vertices, faces)
     assert len(v) == 5
     triangles = {frozenset(map(tuple, v[face])) for face in f}
@@ -118,7 +125,9 @@ def test_non_manifold_edge_separates_patches():
 def test_orientation_turns_inside_out_boxes_and_drops_hidden_sheets():
     outer = trimesh.creation.box(extents=(1, 1, 1))
     inner_sheet = trimesh.Trimesh([[-0.2, -0.2, 0], [0.2, -0.2, 0], [0, 0.2, 0]], [[0, 1, 2]])
-    open_lid = trimesh.creation.box(extents=(0.3, 0.3, 0.3), transform=trimesh.transformations.translation_matrix([2, 0, 0]))
+    open_lid = trimesh.creation.box(
+        extents=(0.3, 0.3, 0.3), transform=trimesh.transformations.translation_matrix([2, 0, 0])
+    )
     open_lid = trimesh.Trimesh(open_lid.vertices, open_lid.faces[2:][:, ::-1], process=False)  # open and inside-out
     inverted = trimesh.Trimesh(outer.vertices, outer.faces[:, ::-1], process=False)
     mesh = trimesh.util.concatenate([inverted, inner_sheet, open_lid])

@@ -113,8 +113,7 @@ def test_missing_model_file(tmp_path):
 def test_material_colours_become_face_colours(tmp_path):
     (tmp_path / "model.mtl").write_text("newmtl red\nKd 1 0 0\n")
     (tmp_path / "model.obj").write_text(
-        "mtllib model.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
-        "usemtl red\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+        "mtllib model.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nusemtl red\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
     )
     mesh = load_mesh(tmp_path / "model.obj")
     assert mesh.visual.kind == "face"

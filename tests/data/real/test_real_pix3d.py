@@ -25,9 +25,9 @@ def write_photo(root, name):
     """A blue photo with a red 20x20 object at BBOX, and its mask."""
     photo = np.zeros((H, W, 3), np.uint8)
     photo[...] = (0, 0, 255)
-    photo[BBOX[1]:BBOX[3], BBOX[0]:BBOX[2]] = (255, 0, 0)
+    photo[BBOX[1] : BBOX[3], BBOX[0] : BBOX[2]] = (255, 0, 0)
     mask = np.zeros((H, W), np.uint8)
-    mask[BBOX[1]:BBOX[3], BBOX[0]:BBOX[2]] = 255
+    mask[BBOX[1] : BBOX[3], BBOX[0] : BBOX[2]] = 255
     (root / "img" / "chair").mkdir(parents=True, exist_ok=True)
     (root / "mask" / "chair").mkdir(parents=True, exist_ok=True)
     Image.fromarray(photo).save(root / "img" / "chair" / f"{name}.jpg", quality=100)
@@ -35,10 +35,21 @@ def write_photo(root, name):
 
 
 def entry(name, model, category="chair", **flags):
-    return {"img": f"img/{category}/{name}.jpg", "mask": f"mask/{category}/{name}.png",
-            "model": f"model/{category}/{model}/model.obj", "category": category, "bbox": list(BBOX),
-            "img_size": [W, H], "rot_mat": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "trans_mat": [0, 0, 2],
-            "focal_length": 35.0, "truncated": False, "occluded": False, "slightly_occluded": False, **flags}
+    return {
+        "img": f"img/{category}/{name}.jpg",
+        "mask": f"mask/{category}/{name}.png",
+        "model": f"model/{category}/{model}/model.obj",
+        "category": category,
+        "bbox": list(BBOX),
+        "img_size": [W, H],
+        "rot_mat": [[1, 0, 0], [0, 1, 0], [0, 0, 1]],
+        "trans_mat": [0, 0, 2],
+        "focal_length": 35.0,
+        "truncated": False,
+        "occluded": False,
+        "slightly_occluded": False,
+        **flags,
+    }
 
 
 @pytest.fixture

@@ -22,8 +22,12 @@ from ushape.data.rendering import render_views
 REPO = Path(__file__).resolve().parents[3]
 PHOTO_HW = (48, 64)
 # (category, model, photos, photos flagged occluded): 11 + 10 usable chair photos -> two Pix3D-MV instances.
-PHOTOS = [("chair", "IKEA_IVAR", 11, 0), ("chair", "IKEA_HENRIKSDAL", 10, 1),
-          ("table", "IKEA_LACK_1", 10, 0), ("table", "IKEA_MALM_1", 2, 0)]
+PHOTOS = [
+    ("chair", "IKEA_IVAR", 11, 0),
+    ("chair", "IKEA_HENRIKSDAL", 10, 1),
+    ("table", "IKEA_LACK_1", 10, 0),
+    ("table", "IKEA_MALM_1", 2, 0),
+]
 
 
 def eval_list_entries(folder: Path) -> list[Pix3DEntry]:
@@ -35,8 +39,16 @@ def eval_list_entries(folder: Path) -> list[Pix3DEntry]:
     for image, voxel in zip(images, voxels):
         voxel = Path(voxel.removeprefix("../"))  # voxel_<a>_<b>.mat belongs to model_<a>_<b>.obj
         model = voxel.parent / (re.sub(r"^voxel", "model", voxel.stem) + ".obj")
-        entries.append(Pix3DEntry(img=image.removeprefix("../"), mask="", model=str(model), category="chair",
-                                  bbox=(0, 0, 1, 1), img_size=(1, 1)))
+        entries.append(
+            Pix3DEntry(
+                img=image.removeprefix("../"),
+                mask="",
+                model=str(model),
+                category="chair",
+                bbox=(0, 0, 1, 1),
+                img_size=(1, 1),
+            )
+        )
     return entries
 
 
@@ -60,8 +72,10 @@ def write_pix3d_tree(sample: Path, root: Path) -> Path:
         (root / "model" / category).mkdir(parents=True, exist_ok=True)
         (root / "model" / category / model).symlink_to(source, target_is_directory=True)
         mesh, _, _ = normalise_mesh(load_mesh(source / "model.obj"))
-        cameras = [look_at(37.0 * i, 20.0, 2.6, 45.0, PHOTO_HW, target=rng.uniform(-0.2, 0.2, 3))
-                   for i in range(n_photos + n_occluded)]
+        cameras = [
+            look_at(37.0 * i, 20.0, 2.6, 45.0, PHOTO_HW, target=rng.uniform(-0.2, 0.2, 3))
+            for i in range(n_photos + n_occluded)
+        ]
         views = render_views(mesh, np.stack([K for K, _ in cameras]), np.stack([w for _, w in cameras]), PHOTO_HW)
         for i, (rgba, mask) in enumerate(zip(views["rgba"], views["mask"])):
             name = f"{model.lower()}_{i:02d}"
@@ -71,11 +85,19 @@ def write_pix3d_tree(sample: Path, root: Path) -> Path:
                 (root / kind / category).mkdir(parents=True, exist_ok=True)
                 Image.fromarray(np.ascontiguousarray(array)).save(root / kind / category / f"{name}.png")
             rows, cols = np.nonzero(mask)
-            records.append({"img": f"img/{category}/{name}.png", "mask": f"mask/{category}/{name}.png",
-                            "model": f"model/{category}/{model}/model.obj", "category": category,
-                            "img_size": [PHOTO_HW[1], PHOTO_HW[0]],
-                            "bbox": [int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1],
-                            "truncated": False, "occluded": i >= n_photos, "slightly_occluded": False})
+            records.append(
+                {
+                    "img": f"img/{category}/{name}.png",
+                    "mask": f"mask/{category}/{name}.png",
+                    "model": f"model/{category}/{model}/model.obj",
+                    "category": category,
+                    "img_size": [PHOTO_HW[1], PHOTO_HW[0]],
+                    "bbox": [int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1],
+                    "truncated": False,
+                    "occluded": i >= n_photos,
+                    "slightly_occluded": False,
+                }
+            )
     (root / "pix3d.json").write_text(json.dumps(records))
     return root
 
@@ -97,20 +119,48 @@ def test_pix3d_world_has_one_view_per_filtered_photo(pix3d_sample, tmp_path):
 
 
 TINY_TRAIN = [
-    "experiment=quickstart", "data.n_train=3", "data.n_val=1", "data.n_test=1", "data.samples_per_shape=3000",
-    "data.n_views=2", "data.image_size=32", "data.mesh_resolution=48", "data.num_workers=0",
-    "stage1.max_epochs=2", "stage1.module.val_every_n_epochs=2", "stage1.module.val_mesh_resolution=16",
-    "stage1.data.shapes_per_batch=3", "stage1.data.samples_per_shape=256", "stage1.data.val_num_shapes=1",
-    "stage1.latent_optim.iterations=3", "stage1.latent_optim.samples_per_iter=256",
-    "stage2.max_epochs=1", "stage2.data.image_size=32", "stage2.data.batch_size=3", "stage2.module.log_meshes=false",
-    "stage2.module.val_samples=20", "stage2.demo_meshes.shapes=0", "encoder.backbone.pretrained=false",
-    "trainer.enable_progress_bar=false", "+trainer.enable_model_summary=false",
+    "experiment=quickstart",
+    "data.n_train=3",
+    "data.n_val=1",
+    "data.n_test=1",
+    "data.samples_per_shape=3000",
+    "data.n_views=2",
+    "data.image_size=32",
+    "data.mesh_resolution=48",
+    "data.num_workers=0",
+    "stage1.max_epochs=2",
+    "stage1.module.val_every_n_epochs=2",
+    "stage1.module.val_mesh_resolution=16",
+    "stage1.data.shapes_per_batch=3",
+    "stage1.data.samples_per_shape=256",
+    "stage1.data.val_num_shapes=1",
+    "stage1.latent_optim.iterations=3",
+    "stage1.latent_optim.samples_per_iter=256",
+    "stage2.max_epochs=1",
+    "stage2.data.image_size=32",
+    "stage2.data.batch_size=3",
+    "stage2.module.log_meshes=false",
+    "stage2.module.val_samples=20",
+    "stage2.demo_meshes.shapes=0",
+    "encoder.backbone.pretrained=false",
+    "trainer.enable_progress_bar=false",
+    "+trainer.enable_model_summary=false",
 ]
 TINY_EVAL = [
-    "data.samples_per_shape=3000", "data.image_size=32", "tensorboard=false", "protocol.resolution=16",
-    "protocol.n_points=64", "protocol.sdf_points=64", "protocol.mc_samples=2", "protocol.code_iterations=5",
-    "protocol.single_view_views=null", "protocol.sdf_views=2", "protocol.showcase_shapes=0",
-    "protocol.calibration_levels=5", "protocol.corrupted_scales=[0.4]", "protocol.single_view_scales=[1.0,0.1]",
+    "data.samples_per_shape=3000",
+    "data.image_size=32",
+    "tensorboard=false",
+    "protocol.resolution=16",
+    "protocol.n_points=64",
+    "protocol.sdf_points=64",
+    "protocol.mc_samples=2",
+    "protocol.code_iterations=5",
+    "protocol.single_view_views=null",
+    "protocol.sdf_views=2",
+    "protocol.showcase_shapes=0",
+    "protocol.calibration_levels=5",
+    "protocol.corrupted_scales=[0.4]",
+    "protocol.single_view_scales=[1.0,0.1]",
 ]
 
 
@@ -135,8 +185,10 @@ def test_eval_py_on_pix3d_writes_tables_1_and_3(pix3d_sample, tmp_path):
     # Every usable photo once in Table 1, with and without its mask; the occluded one is filtered out.
     assert cell[("es", "single", 1.0, "single-view")]["n"] == 21
     assert cell[("es-nomask", "single", 1.0, "single-view")]["n"] == 21
-    assert {cell[("es", "single", 1.0, "single-view")]["label"], cell[("es-nomask", "single", 1.0, "single-view")]["label"]} \
-        == {"Ours w/ GT Mask", "Ours w/o Mask"}
+    assert {
+        cell[("es", "single", 1.0, "single-view")]["label"],
+        cell[("es-nomask", "single", 1.0, "single-view")]["label"],
+    } == {"Ours w/ GT Mask", "Ours w/o Mask"}
     # Pix3D-MV: IVAR's 11 photos give one instance of 10 (the 11th dropped), HENRIKSDAL's 10 another.
     assert cell[("es", "multi", 1.0, "bayesian")]["n"] == 2 and cell[("es", "multi", 1.0, "bayesian")]["views"] == 10
     assert cell[("es", "multi", 0.4, "bayesian-4")]["n"] == 2  # Table 4's crops
@@ -146,8 +198,10 @@ def test_eval_py_on_pix3d_writes_tables_1_and_3(pix3d_sample, tmp_path):
     for line in ("Ours w/ GT Mask", "Ours w/o Mask", "Stage-1 codes (decoder ceiling)"):
         assert line in tables
 
-    run_script(["eval.py", *common, "category=tables", "protocols=[single_view,multi_view]",
-                f"out_dir={tmp_path / 'tables'}"], env)
+    run_script(
+        ["eval.py", *common, "category=tables", "protocols=[single_view,multi_view]", f"out_dir={tmp_path / 'tables'}"],
+        env,
+    )
     summary = json.loads((tmp_path / "tables" / "results.json").read_text())["summary"]
     cell = {(r["encoder"], r["protocol"], r["min_scale"], r["method"]): r for r in summary}
     assert cell[("es", "single", 1.0, "single-view")]["n"] == 12

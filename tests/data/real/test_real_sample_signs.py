@@ -25,8 +25,9 @@ def real_models():
     """(test id, model file, voxel file) of every ShapeNetCore.v2 and Pix3D model in the shared sample."""
     shapenet = sorted(REAL_SAMPLE.glob("ShapeNetCore.v2/*/*/models/model_normalized.obj"))
     pix3d = sorted(REAL_SAMPLE.glob("pix3d/model/*/*/model.obj"))
-    return ([pytest.param(p, p.parent / "model_normalized.solid.binvox", id=p.parents[1].name[:8]) for p in shapenet]
-            + [pytest.param(p, p.parent / "voxel.mat", id=p.parent.name) for p in pix3d])
+    return [pytest.param(p, p.parent / "model_normalized.solid.binvox", id=p.parents[1].name[:8]) for p in shapenet] + [
+        pytest.param(p, p.parent / "voxel.mat", id=p.parent.name) for p in pix3d
+    ]
 
 
 def official_voxels(model, voxel_file):

@@ -65,13 +65,21 @@ def test_every_real_view_matches_the_mesh_in_v1_axes(r2n2_chair):
     assert ious.min() >= MIN_VIEW_IOU, np.round(ious, 3)
 
 
-def test_world_built_from_real_renders_records_their_agreement(r2n2_chair, shapenet_sample, renderings, tmp_path,
-                                                              caplog):
+def test_world_built_from_real_renders_records_their_agreement(
+    r2n2_chair, shapenet_sample, renderings, tmp_path, caplog
+):
     split = tmp_path / "split.json"
     split.write_text(json.dumps({"train": [CHAIR]}))
-    world = ShapeNetWorld("chairs", str(shapenet_sample), str(tmp_path / "cache"),
-                          split_file=str(split), renderings_root=str(renderings), samples_per_shape=2000,
-                          n_views=6, image_size=137)
+    world = ShapeNetWorld(
+        "chairs",
+        str(shapenet_sample),
+        str(tmp_path / "cache"),
+        split_file=str(split),
+        renderings_root=str(renderings),
+        samples_per_shape=2000,
+        n_views=6,
+        image_size=137,
+    )
     assert world.layout == "v2"
     index = world.build()
     with np.load(index.views_path(CHAIR)) as views:
@@ -85,9 +93,18 @@ def test_a_mesh_in_the_wrong_axes_is_flagged(shapenet_sample, renderings, tmp_pa
     # The v2 mesh filed as a v1 model: the cameras assume v1 axes, the renders disagree, the build warns.
     v1_root = tmp_path / "ShapeNetCore.v1"
     (v1_root / CHAIRS / CHAIR).mkdir(parents=True)
-    (v1_root / CHAIRS / CHAIR / "model.obj").symlink_to(shapenet_sample / CHAIRS / CHAIR / "models" / "model_normalized.obj")
-    world = ShapeNetWorld("chairs", str(v1_root), str(tmp_path / "cache"), renderings_root=str(renderings),
-                          samples_per_shape=2000, n_views=4, image_size=137)
+    (v1_root / CHAIRS / CHAIR / "model.obj").symlink_to(
+        shapenet_sample / CHAIRS / CHAIR / "models" / "model_normalized.obj"
+    )
+    world = ShapeNetWorld(
+        "chairs",
+        str(v1_root),
+        str(tmp_path / "cache"),
+        renderings_root=str(renderings),
+        samples_per_shape=2000,
+        n_views=4,
+        image_size=137,
+    )
     assert world.layout == "v1"
     with pytest.warns(UserWarning, match="only one shape"):
         index = world.build()

@@ -72,8 +72,15 @@ def test_r2n2_metadata_gives_cameras_that_reproduce_its_renders(shapenet_tree, t
         write_r2n2_tree(root, tmp_path / "ShapeNetRendering", model_id, rows)
     np.testing.assert_allclose(shapenet_rendering.read_metadata(tmp_path / "ShapeNetRendering", CHAIRS, "c0"), rows)
     with pytest.warns(UserWarning):
-        index = ShapeNetWorld("chairs", str(root), str(tmp_path / "cache"), samples_per_shape=2000, n_views=2,
-                              image_size=137, renderings_root=str(tmp_path / "ShapeNetRendering")).build()
+        index = ShapeNetWorld(
+            "chairs",
+            str(root),
+            str(tmp_path / "cache"),
+            samples_per_shape=2000,
+            n_views=2,
+            image_size=137,
+            renderings_root=str(tmp_path / "ShapeNetRendering"),
+        ).build()
     sid = index.shape_ids("train")[0]
     with np.load(index.views_path(sid)) as views:
         # Our normalised frame re-renders R2N2's images pixel for pixel.
@@ -81,7 +88,9 @@ def test_r2n2_metadata_gives_cameras_that_reproduce_its_renders(shapenet_tree, t
         mesh, _, _ = normalise_mesh(load_mesh(root / CHAIRS / sid / "model.obj"))
         centre, scale = r2n2_frame(mesh)
         # Azimuth 0, elevation 0: the camera sits on +x at distance_ratio * 1.75 in R2N2 units.
-        np.testing.assert_allclose(camera_centre(views["world_to_cam"][0]), centre + [0.8 * 1.75 / scale, 0, 0], atol=1e-5)
+        np.testing.assert_allclose(
+            camera_centre(views["world_to_cam"][0]), centre + [0.8 * 1.75 / scale, 0, 0], atol=1e-5
+        )
     assert json.loads(index.shape_path(sid).read_text())["views"] == "shapenet_rendering"
     with Image.open(index.image_path(sid, 1)) as image:
         assert image.size == (137, 137) and image.mode == "RGBA"
@@ -93,15 +102,23 @@ def test_missing_renders_skip_the_model(shapenet_tree, tmp_path):
     for model_id in ("c0", "c1"):
         write_r2n2_tree(root, tmp_path / "R", model_id, rows, size=32)
     with pytest.warns(UserWarning):
-        index = ShapeNetWorld("chairs", str(root), str(tmp_path / "cache"), samples_per_shape=2000, n_views=1,
-                              image_size=32, renderings_root=str(tmp_path / "R")).build()
+        index = ShapeNetWorld(
+            "chairs",
+            str(root),
+            str(tmp_path / "cache"),
+            samples_per_shape=2000,
+            n_views=1,
+            image_size=32,
+            renderings_root=str(tmp_path / "R"),
+        ).build()
     assert "c2" in json.loads((index.root / "skipped.json").read_text())
 
 
 def test_real_sample_chairs_build(shapenet_sample, tmp_path):
     with pytest.warns(UserWarning, match="val and test share"):
-        index = ShapeNetWorld("chairs", str(shapenet_sample), str(tmp_path), samples_per_shape=5000, n_views=1,
-                              image_size=48).build()
+        index = ShapeNetWorld(
+            "chairs", str(shapenet_sample), str(tmp_path), samples_per_shape=5000, n_views=1, image_size=48
+        ).build()
     assert len(index.splits["train"]) == 2 and index.splits["val"] == index.splits["test"]
     for sid in index.shape_ids():
         with np.load(index.sdf_path(sid)) as samples:
@@ -116,8 +133,17 @@ def test_real_sample_chairs_build(shapenet_sample, tmp_path):
 
 
 def test_a_record_rewritten_without_resampling_keeps_its_sign_report(shapenet_sample, tmp_path):
-    make = lambda: ShapeNetWorld("chairs", str(shapenet_sample), str(tmp_path), samples_per_shape=3000,  # noqa: E731
-                                 n_views=1, image_size=32, max_shapes=1)
+    def make():
+        return ShapeNetWorld(
+            "chairs",
+            str(shapenet_sample),
+            str(tmp_path),
+            samples_per_shape=3000,
+            n_views=1,
+            image_size=32,
+            max_shapes=1,
+        )
+
     with pytest.warns(UserWarning, match="val and test share"):
         index = make().build()
     sid = index.splits["train"][0]

@@ -166,10 +166,16 @@ class SignReport:
         tally: SignTally = signs.tally
         surface = signs.surface
         return cls(
-            method=SIGN_METHOD, samples=tally.points, confidence=tally.share(tally.confident),
-            inside=tally.share(tally.inside), undecided=tally.share(tally.undecided), leak=tally.leak,
-            patches=surface.patches, closed_patches=surface.closed_patches,
-            flipped_patches=surface.flipped_patches, hidden_patches=surface.hidden_patches,
+            method=SIGN_METHOD,
+            samples=tally.points,
+            confidence=tally.share(tally.confident),
+            inside=tally.share(tally.inside),
+            undecided=tally.share(tally.undecided),
+            leak=tally.leak,
+            patches=surface.patches,
+            closed_patches=surface.closed_patches,
+            flipped_patches=surface.flipped_patches,
+            hidden_patches=surface.hidden_patches,
         )
 
     def as_dict(self) -> dict:

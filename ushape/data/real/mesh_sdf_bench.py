@@ -66,10 +66,14 @@ def known_answer_rows(methods: dict[str, ModuleType], n: int) -> list[dict[str, 
 
 def real_models(root: Path) -> list[tuple[str, Path, Path]]:
     """(name, model file, voxel file) of every ShapeNetCore.v2 and Pix3D model under root."""
-    found = [(p.parents[1].name, p, p.parent / "model_normalized.solid.binvox")
-             for p in sorted(root.glob("ShapeNetCore.v2/*/*/models/model_normalized.obj"))]
-    found += [(f"{p.parent.parent.name}/{p.parent.name}", p, p.parent / "voxel.mat")
-              for p in sorted(root.glob("pix3d/model/*/*/model.obj"))]
+    found = [
+        (p.parents[1].name, p, p.parent / "model_normalized.solid.binvox")
+        for p in sorted(root.glob("ShapeNetCore.v2/*/*/models/model_normalized.obj"))
+    ]
+    found += [
+        (f"{p.parent.parent.name}/{p.parent.name}", p, p.parent / "voxel.mat")
+        for p in sorted(root.glob("pix3d/model/*/*/model.obj"))
+    ]
     return [f for f in found if f[2].is_file()]
 
 
@@ -106,9 +110,13 @@ def real_rows(methods: dict[str, ModuleType], root: Path, n: int) -> list[dict[s
 
 
 def _report_columns(report) -> dict[str, Any]:
-    return {"confidence": report.confidence, "leak": report.leak, "undecided": report.undecided,
-            "patches (closed/flipped/hidden)": f"{report.patches} ({report.closed_patches}/"
-                                               f"{report.flipped_patches}/{report.hidden_patches})"}
+    return {
+        "confidence": report.confidence,
+        "leak": report.leak,
+        "undecided": report.undecided,
+        "patches (closed/flipped/hidden)": f"{report.patches} ({report.closed_patches}/"
+        f"{report.flipped_patches}/{report.hidden_patches})",
+    }
 
 
 def timing_rows(methods: dict[str, ModuleType], root: Path, n: int, repeats: int) -> list[dict[str, Any]]:
@@ -162,7 +170,10 @@ def main(argv: Optional[list[str]] = None) -> int:
         print(markdown(results["real models"]), flush=True)
         if not args.no_timing:
             results["timing"] = timing_rows(methods, args.real_root, args.timing_samples, args.repeats)
-            print(f"\n## Time per mesh, MeshSdf construction + sdf of {args.timing_samples} samples (best of {args.repeats})\n")
+            print(
+                f"\n## Time per mesh, MeshSdf construction + sdf of {args.timing_samples} samples "
+                f"(best of {args.repeats})\n"
+            )
             print(markdown(results["timing"]), flush=True)
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))

@@ -153,8 +153,11 @@ def orient_surface(vertices: np.ndarray, faces: np.ndarray, rng: np.random.Gener
         keep[open_ids[(front == 0) & (back == 0)]] = False
     faces[turn[labels]] = faces[turn[labels]][:, ::-1]
     return OrientedSurface(
-        faces=np.ascontiguousarray(faces[keep[labels]]), patches=len(closed), closed_patches=int(closed.sum()),
-        flipped_patches=int(turn.sum()), hidden_patches=int((~keep).sum()),
+        faces=np.ascontiguousarray(faces[keep[labels]]),
+        patches=len(closed),
+        closed_patches=int(closed.sum()),
+        flipped_patches=int(turn.sum()),
+        hidden_patches=int((~keep).sum()),
     )
 
 
@@ -203,19 +206,19 @@ def escape_fraction(mesh: trimesh.Trimesh, points: np.ndarray, n_rays: int, rng:
     intersector = mesh.ray
     out = np.empty(len(points))
     for start in range(0, len(points), RAY_CHUNK):
-        chunk = points[start:start + RAY_CHUNK]
+        chunk = points[start : start + RAY_CHUNK]
         # A random rotation per point keeps neighbouring points from sharing blind spots.
         rotations = Rotation.random(len(chunk), random_state=rng).as_matrix()
         directions = np.einsum("pij,rj->pri", rotations, base).reshape(-1, 3)
         origins = np.repeat(chunk, n_rays, axis=0)
         hit = intersector.intersects_any(origins, directions).reshape(len(chunk), n_rays)
-        out[start:start + len(chunk)] = 1.0 - hit.mean(axis=1)
+        out[start : start + len(chunk)] = 1.0 - hit.mean(axis=1)
     return out
 
 
 @dataclass
 class SignTally:
-    """Running counts over every point classified: how often the winding number needed help, and how sure the result is."""
+    """Running counts over every point classified: how often the winding number needed help, how sure the result is."""
 
     points: int = 0
     inside: int = 0

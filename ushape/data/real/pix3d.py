@@ -101,11 +101,17 @@ def parse_entry(raw: dict[str, Any]) -> Pix3DEntry:
         raise ValueError(f"pix3d.json entry {raw.get('img', '?')} lacks {missing}")
     as_tuple = lambda v: None if v is None else tuple(tuple(r) if isinstance(r, list) else r for r in v)  # noqa: E731
     return Pix3DEntry(
-        img=raw["img"], mask=raw["mask"], model=raw["model"], category=raw["category"],
-        bbox=tuple(float(b) for b in raw["bbox"]), img_size=tuple(int(s) for s in raw["img_size"]),
-        truncated=bool(raw.get("truncated", False)), occluded=bool(raw.get("occluded", False)),
+        img=raw["img"],
+        mask=raw["mask"],
+        model=raw["model"],
+        category=raw["category"],
+        bbox=tuple(float(b) for b in raw["bbox"]),
+        img_size=tuple(int(s) for s in raw["img_size"]),
+        truncated=bool(raw.get("truncated", False)),
+        occluded=bool(raw.get("occluded", False)),
         slightly_occluded=bool(raw.get("slightly_occluded", False)),
-        rot_mat=as_tuple(raw.get("rot_mat")), trans_mat=as_tuple(raw.get("trans_mat")),
+        rot_mat=as_tuple(raw.get("rot_mat")),
+        trans_mat=as_tuple(raw.get("trans_mat")),
         focal_length=raw.get("focal_length"),
     )
 
@@ -132,8 +138,10 @@ def load_annotations(
         wanted = pix3d_category(category)
         entries = [e for e in entries if e.category == wanted]
     return [
-        e for e in entries
-        if not (drop_truncated and e.truncated) and not (drop_occluded and e.occluded)
+        e
+        for e in entries
+        if not (drop_truncated and e.truncated)
+        and not (drop_occluded and e.occluded)
         and not (drop_slightly_occluded and e.slightly_occluded)
     ]
 
@@ -148,7 +156,7 @@ def multiview_groups(entries: Sequence[Pix3DEntry], group_size: int = 10) -> lis
     groups = []
     for model_id in sorted(by_model):
         ordered = sorted(by_model[model_id], key=lambda i: entries[i].img)
-        groups += [ordered[s:s + group_size] for s in range(0, len(ordered) - group_size + 1, group_size)]
+        groups += [ordered[s : s + group_size] for s in range(0, len(ordered) - group_size + 1, group_size)]
     return groups
 
 
@@ -218,9 +226,9 @@ class Pix3DImages(Dataset):
     """Cropped Pix3D photos -> dict(image, mask [1,image_size,image_size], model_id, group, view, img).
 
     `transform(rgba, generator)` maps the premultiplied RGBA crop to the encoder's input (default:
-    resize to `image_size` and composite on white, which also fills crop areas outside the photo). With `multiview`, items are only the images of
-    Pix3D-MV groups, `group` is the instance index and `view` the position in it; otherwise every
-    filtered image is an item and `group`/`view` are -1.
+    resize to `image_size` and composite on white, which also fills crop areas outside the photo). With
+    `multiview`, items are only the images of Pix3D-MV groups, `group` is the instance index and `view`
+    the position in it; otherwise every filtered image is an item and `group`/`view` are -1.
     """
 
     def __init__(
@@ -265,8 +273,14 @@ class Pix3DImages(Dataset):
         rgba, mask = load_crop(self.root, entry, self.crop_size, self.margin, self.mask_mode)
         if mask.shape[-1] != self.image_size:
             mask = torch.nn.functional.interpolate(mask[None], size=(self.image_size,) * 2, mode="bilinear")[0]
-        return {"image": self.transform(rgba, None), "mask": mask, "model_id": entry.model_id,
-                "group": group, "view": view, "img": entry.img}
+        return {
+            "image": self.transform(rgba, None),
+            "mask": mask,
+            "model_id": entry.model_id,
+            "group": group,
+            "view": view,
+            "img": entry.img,
+        }
 
 
 def load_voxels(path: str | Path) -> np.ndarray:
@@ -319,17 +333,26 @@ class Pix3DWorld:
     ) -> None:
         self.root = Path(root).expanduser().resolve()
         self.category = pix3d_category(category)
-        self.filters = dict(drop_truncated=bool(drop_truncated), drop_occluded=bool(drop_occluded),
-                            drop_slightly_occluded=bool(drop_slightly_occluded))
+        self.filters = dict(
+            drop_truncated=bool(drop_truncated),
+            drop_occluded=bool(drop_occluded),
+            drop_slightly_occluded=bool(drop_slightly_occluded),
+        )
         self.image_options = dict(image_size=image_size, margin=margin, mask_mode=mask_mode, group_size=group_size)
         self.config = {
-            "dataset": "pix3d", "category": self.category, "root": str(self.root),
-            "samples_per_shape": int(samples_per_shape), "seed": int(seed),
-            "image_size": int(image_size), "margin": float(margin), **self.filters,
+            "dataset": "pix3d",
+            "category": self.category,
+            "root": str(self.root),
+            "samples_per_shape": int(samples_per_shape),
+            "seed": int(seed),
+            "image_size": int(image_size),
+            "margin": float(margin),
+            **self.filters,
             "preprocess_version": PREPROCESS_VERSION,
             # Read by the evaluation: Pix3D-MV drops a model's last images short of a group, and
             # Table 1 has rows with and without the ground-truth mask.
-            "drop_short_instances": True, "mask_inputs": list(MASK_INPUTS),
+            "drop_short_instances": True,
+            "mask_inputs": list(MASK_INPUTS),
         }
         self.cache_root = Path(cache_root).expanduser()
 
@@ -368,8 +391,9 @@ class Pix3DWorld:
         if not ids:
             raise ValueError(f"no usable Pix3D {self.category} model under {self.root} ({len(skipped)} skipped)")
         views = {m: len(photos[m]) for m in ids}
-        atomic.write_json(root / "config.json", {**self.config, "n_views": max(views.values()),
-                                                 "views_per_shape": views})
+        atomic.write_json(
+            root / "config.json", {**self.config, "n_views": max(views.values()), "views_per_shape": views}
+        )
         atomic.write_json(root / SKIPPED_FILE, skipped)
         for split, split_ids in (("train", []), ("val", []), ("test", ids)):
             atomic.write_json(index.split_path(split), split_ids)
@@ -377,12 +401,14 @@ class Pix3DWorld:
 
     def images(self, multiview: bool = False, transform: Optional[Callable[..., Tensor]] = None) -> Pix3DImages:
         """The category's cropped photos (Pix3D-MV groups with multiview=True)."""
-        return Pix3DImages(self.root, self.category, multiview=multiview, transform=transform,
-                           **self.image_options, **self.filters)
+        return Pix3DImages(
+            self.root, self.category, multiview=multiview, transform=transform, **self.image_options, **self.filters
+        )
 
 
-def write_pix3d_views(index: WorldIndex, model_id: str, root: Path, entries: Sequence[Pix3DEntry],
-                      margin: float) -> None:
+def write_pix3d_views(
+    index: WorldIndex, model_id: str, root: Path, entries: Sequence[Pix3DEntry], margin: float
+) -> None:
     """renders/<model>/NN.png, one cropped photo per entry, unless already there; the photos go into the record."""
     size = int(index.config["image_size"])
     for view, entry in enumerate(entries):
@@ -412,7 +438,14 @@ def process_pix3d_model(index: WorldIndex, model_id: str, source: Path) -> None:
         samples, report = sample_mesh_sdf(mesh, int(index.config["samples_per_shape"]), np.random.default_rng(seed))
         atomic.save_npz(index.sdf_path(model_id), **samples)
         signs = report.as_dict()
-    atomic.write_json(index.shape_path(model_id), {
-        "shape_id": model_id, "category": index.category, "source": str(source),
-        "centre": centre.tolist(), "scale": float(scale), "sdf_signs": signs,
-    })
+    atomic.write_json(
+        index.shape_path(model_id),
+        {
+            "shape_id": model_id,
+            "category": index.category,
+            "source": str(source),
+            "centre": centre.tolist(),
+            "scale": float(scale),
+            "sdf_signs": signs,
+        },
+    )

@@ -87,8 +87,7 @@ def read_split_source(source: SplitSource, synset: str) -> dict[str, list[str]]:
         unknown = set(source) - set(SPLITS)
         if unknown:
             raise ValueError(f"split files given for unknown splits {sorted(unknown)}; use {SPLITS}")
-        return {s: _ids_of(_read_json(Path(source[s])), synset, Path(source[s])) if s in source else []
-                for s in SPLITS}
+        return {s: _ids_of(_read_json(Path(source[s])), synset, Path(source[s])) if s in source else [] for s in SPLITS}
     path = Path(source).expanduser()
     if path.is_dir():
         files = {s: path / f"{s}.json" for s in SPLITS if (path / f"{s}.json").is_file()}
@@ -155,4 +154,4 @@ def hash_split(ids: Sequence[str], fractions: Sequence[float] = DEFAULT_FRACTION
         warnings.warn(f"only {n} shapes: val and test share {shared} shape(s) so train keeps {n - shared}")
         held = ordered[:shared]
         return {"train": ordered[shared:], "val": held if n_val else [], "test": held if n_test else []}
-    return {"train": ordered[n_test + n_val:], "val": ordered[n_test:n_test + n_val], "test": ordered[:n_test]}
+    return {"train": ordered[n_test + n_val :], "val": ordered[n_test : n_test + n_val], "test": ordered[:n_test]}

@@ -32,7 +32,7 @@ from ushape.data.shape_artifacts import r2n2_frame
 RENDERING_DIR = "rendering"
 METADATA_FILE = "rendering_metadata.txt"
 R2N2_IMAGE_SIZE = 137
-ALPHA_THRESHOLD = 128   # of 255: the object's pixels, without the anti-aliased rim
+ALPHA_THRESHOLD = 128  # of 255: the object's pixels, without the anti-aliased rim
 AGREEMENT_WARNING = 0.9  # mean silhouette IoU under which a model's renders and mesh disagree
 EXPECTED_LAYOUT = (
     "<root>/<synset>/<model_id>/rendering/{00..23}.png and rendering/rendering_metadata.txt "
@@ -66,7 +66,9 @@ def image_paths(root: str | Path, synset: str, model_id: str, n_views: int) -> l
     paths = [folder / f"{v:02d}.png" for v in range(n_views)]
     missing = [p for p in paths if not p.is_file()]
     if missing:
-        raise FileNotFoundError(f"{len(missing)} of {n_views} renders missing, e.g. {missing[0]}. Expected {EXPECTED_LAYOUT}")
+        raise FileNotFoundError(
+            f"{len(missing)} of {n_views} renders missing, e.g. {missing[0]}. Expected {EXPECTED_LAYOUT}"
+        )
     return paths
 
 
@@ -84,8 +86,9 @@ def alpha_mask(rgba: np.ndarray) -> np.ndarray:
     return rgba[..., 3] >= ALPHA_THRESHOLD
 
 
-def model_cameras(rows: np.ndarray, mesh: trimesh.Trimesh, image_size: int,
-                  layout: str = "v1") -> tuple[np.ndarray, np.ndarray]:
+def model_cameras(
+    rows: np.ndarray, mesh: trimesh.Trimesh, image_size: int, layout: str = "v1"
+) -> tuple[np.ndarray, np.ndarray]:
     """(K [V,3,3], world_to_cam [V,4,4]) in the normalised mesh's frame from R2N2 rows [V,5].
 
     `layout` is the ShapeNetCore version ("v1" or "v2") whose axes the mesh is in.

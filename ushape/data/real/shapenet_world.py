@@ -77,8 +77,7 @@ class ShapeNetWorld:
         num_workers: int = 0,
         split_fractions: Sequence[float] = shapenet.DEFAULT_FRACTIONS,
     ) -> None:
-        for name, value in (("samples_per_shape", samples_per_shape), ("n_views", n_views),
-                            ("image_size", image_size)):
+        for name, value in (("samples_per_shape", samples_per_shape), ("n_views", n_views), ("image_size", image_size)):
             if int(value) < 1:
                 raise ValueError(f"{name} must be positive, got {value}")
         if max_shapes is not None and int(max_shapes) < 1:
@@ -95,11 +94,19 @@ class ShapeNetWorld:
         self.split_file = split_file
         self.num_workers = int(num_workers)
         self.config: dict[str, Any] = {
-            "dataset": "shapenet", "category": str(category), "synset": self.synset,
-            "root": str(self.root), "layout": self.layout, "renderings_root": self.renderings_root,
-            "split": _split_fingerprint(split_file), "split_fractions": [float(f) for f in split_fractions],
-            "samples_per_shape": int(samples_per_shape), "n_views": int(n_views), "image_size": int(image_size),
-            "seed": int(seed), "max_shapes": None if max_shapes is None else int(max_shapes),
+            "dataset": "shapenet",
+            "category": str(category),
+            "synset": self.synset,
+            "root": str(self.root),
+            "layout": self.layout,
+            "renderings_root": self.renderings_root,
+            "split": _split_fingerprint(split_file),
+            "split_fractions": [float(f) for f in split_fractions],
+            "samples_per_shape": int(samples_per_shape),
+            "n_views": int(n_views),
+            "image_size": int(image_size),
+            "seed": int(seed),
+            "max_shapes": None if max_shapes is None else int(max_shapes),
             "preprocess_version": PREPROCESS_VERSION,
         }
 
@@ -131,10 +138,17 @@ class ShapeNetWorld:
         for ids in planned.values():
             for mid in ids:
                 if mid not in available and mid not in skipped:
-                    skipped[mid] = f"listed in the split but {shapenet.model_path(self.root, self.synset, mid, self.layout)} is missing"
+                    skipped[mid] = (
+                        f"listed in the split but "
+                        f"{shapenet.model_path(self.root, self.synset, mid, self.layout)} is missing"
+                    )
         index = WorldIndex(root=root, category=self.config["category"], splits=planned, config=self.config)
-        jobs = [self._job(index, split, mid) for split in SPLITS for mid in dict.fromkeys(planned[split])
-                if mid not in skipped]
+        jobs = [
+            self._job(index, split, mid)
+            for split in SPLITS
+            for mid in dict.fromkeys(planned[split])
+            if mid not in skipped
+        ]
         jobs = list({j.model_id: j for j in jobs}.values())  # val/test may share a model
         for model_id, reason in self._run(jobs):
             if reason is not None:
@@ -150,8 +164,13 @@ class ShapeNetWorld:
         for split in SPLITS:
             if _json_differs(index.split_path(split), splits[split]):
                 atomic.write_json(index.split_path(split), splits[split])
-        log.info("ShapeNet %s world %s ready in %.1fs (%d skipped)", self.synset, root,
-                 time.perf_counter() - start, len(skipped))
+        log.info(
+            "ShapeNet %s world %s ready in %.1fs (%d skipped)",
+            self.synset,
+            root,
+            time.perf_counter() - start,
+            len(skipped),
+        )
         return WorldIndex.load(root)
 
     def _job(self, index: WorldIndex, split: str, model_id: str) -> ModelJob:
@@ -171,7 +190,9 @@ def process_model(job: ModelJob) -> tuple[str, Optional[str]]:
     try:
         mesh, centre, scale = normalise_mesh(load_mesh(job.source))
         if "mesh" in problems:
-            atomic.write_bytes(job.index.mesh_path(job.model_id), trimesh.exchange.ply.export_ply(mesh, encoding="binary"))
+            atomic.write_bytes(
+                job.index.mesh_path(job.model_id), trimesh.exchange.ply.export_ply(mesh, encoding="binary")
+            )
         signs = None if "sdf" in problems else previous_signs(job.index.shape_path(job.model_id))
         if "sdf" in problems:
             rng = np.random.default_rng(np.random.SeedSequence(job.seed, spawn_key=(SDF_STREAM,)))
@@ -182,11 +203,21 @@ def process_model(job: ModelJob) -> tuple[str, Optional[str]]:
             write_model_views(job, mesh)
     except (MeshProcessingError, FileNotFoundError) as err:
         return job.model_id, f"{type(err).__name__}: {err}"
-    atomic.write_json(job.index.shape_path(job.model_id), {
-        "shape_id": job.model_id, "category": job.index.category, "synset": job.synset, "split": job.split,
-        "source": job.source, "layout": job.layout, "centre": centre.tolist(), "scale": float(scale),
-        "views": "shapenet_rendering" if job.renderings_root else "ushape", "sdf_signs": signs,
-    })
+    atomic.write_json(
+        job.index.shape_path(job.model_id),
+        {
+            "shape_id": job.model_id,
+            "category": job.index.category,
+            "synset": job.synset,
+            "split": job.split,
+            "source": job.source,
+            "layout": job.layout,
+            "centre": centre.tolist(),
+            "scale": float(scale),
+            "views": "shapenet_rendering" if job.renderings_root else "ushape",
+            "sdf_signs": signs,
+        },
+    )
     return job.model_id, None
 
 
@@ -215,9 +246,14 @@ def write_model_views(job: ModelJob, mesh: trimesh.Trimesh) -> None:
         masks = shapenet_rendering.alpha_mask(rgba)
         iou = shapenet_rendering.render_agreement(masks, ours["mask"])
         if iou < shapenet_rendering.AGREEMENT_WARNING:
-            log.warning("%s: R2N2 images overlap our renders through their cameras by IoU %.2f only (real "
-                        "ShapeNet chairs: > 0.99); this %s model's frame may differ from the one R2N2 rendered "
-                        "(see ushape.data.real.shapenet_rendering)", job.model_id, iou, job.layout)
+            log.warning(
+                "%s: R2N2 images overlap our renders through their cameras by IoU %.2f only (real "
+                "ShapeNet chairs: > 0.99); this %s model's frame may differ from the one R2N2 rendered "
+                "(see ushape.data.real.shapenet_rendering)",
+                job.model_id,
+                iou,
+                job.layout,
+            )
         extra["r2n2_mask_iou"] = np.float32(iou)
     for view in range(n_views):
         buffer = io.BytesIO()
@@ -225,9 +261,14 @@ def write_model_views(job: ModelJob, mesh: trimesh.Trimesh) -> None:
         atomic.write_bytes(index.image_path(job.model_id, view), buffer.getvalue())
     atomic.write_text(index.metadata_path(job.model_id), text)
     atomic.save_npz(
-        index.views_path(job.model_id), K=Ks.astype(np.float32), world_to_cam=world_to_cams.astype(np.float32),
-        masks=masks, depth=ours["depth"].astype(np.float32), r2n2_centre=centre.astype(np.float32),
-        r2n2_scale=np.float32(scale), **extra,
+        index.views_path(job.model_id),
+        K=Ks.astype(np.float32),
+        world_to_cam=world_to_cams.astype(np.float32),
+        masks=masks,
+        depth=ours["depth"].astype(np.float32),
+        r2n2_centre=centre.astype(np.float32),
+        r2n2_scale=np.float32(scale),
+        **extra,
     )
 
 

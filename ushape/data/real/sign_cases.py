@@ -49,14 +49,20 @@ def cabinet() -> SignCase:
     """Four deep cubbies open at the front, every panel a closed box (as the issue's 22-part shelf unit)."""
     t = 0.05
     boxes = [
-        ((-0.6, -0.7, -0.5), (-0.6 + t, 0.7, 0.5)), ((0.6 - t, -0.7, -0.5), (0.6, 0.7, 0.5)),  # sides
-        ((-0.55, 0.7 - t, -0.5), (0.55, 0.7, 0.5)), ((-0.55, -0.7, -0.5), (0.55, -0.7 + t, 0.5)),  # top, bottom
+        ((-0.6, -0.7, -0.5), (-0.6 + t, 0.7, 0.5)),
+        ((0.6 - t, -0.7, -0.5), (0.6, 0.7, 0.5)),  # sides
+        ((-0.55, 0.7 - t, -0.5), (0.55, 0.7, 0.5)),
+        ((-0.55, -0.7, -0.5), (0.55, -0.7 + t, 0.5)),  # top, bottom
         ((-0.55, -t / 2, -0.45), (0.55, t / 2, 0.5)),  # shelf
         ((-t / 2, -0.65, -0.45), (t / 2, 0.65, 0.5)),  # divider, crossing the shelf
         ((-0.55, -0.65, -0.5), (0.55, 0.65, -0.45)),  # back
     ]
-    return SignCase("cabinet with open cubbies", union_of_closed_boxes(boxes), in_boxes(boxes),
-                    "the panels are inside; the cubbies are outside however deep")
+    return SignCase(
+        "cabinet with open cubbies",
+        union_of_closed_boxes(boxes),
+        in_boxes(boxes),
+        "the panels are inside; the cubbies are outside however deep",
+    )
 
 
 def drawer_table() -> SignCase:
@@ -65,11 +71,16 @@ def drawer_table() -> SignCase:
     boxes += [((x - 0.03, -0.4, z - 0.03), (x + 0.03, 0.375, z + 0.03)) for x in (-0.55, 0.55) for z in (-0.35, 0.35)]
     boxes += [
         ((-0.3, 0.24, -0.3), (0.3, 0.26, 0.3)),  # drawer bottom
-        ((-0.3, 0.26, -0.3), (-0.28, 0.375, 0.3)), ((0.28, 0.26, -0.3), (0.3, 0.375, 0.3)),  # drawer sides
+        ((-0.3, 0.26, -0.3), (-0.28, 0.375, 0.3)),
+        ((0.28, 0.26, -0.3), (0.3, 0.375, 0.3)),  # drawer sides
         ((-0.28, 0.26, -0.3), (0.28, 0.375, -0.28)),  # drawer back
     ]
-    return SignCase("table with a drawer open at the front", union_of_closed_boxes(boxes), in_boxes(boxes),
-                    "top, legs and drawer panels are inside; the drawer's shallow cavity is outside")
+    return SignCase(
+        "table with a drawer open at the front",
+        union_of_closed_boxes(boxes),
+        in_boxes(boxes),
+        "top, legs and drawer panels are inside; the drawer's shallow cavity is outside",
+    )
 
 
 def _box_surface_with_holes(box: Box, holes: list[Box], subdivisions: int = 3) -> trimesh.Trimesh:
@@ -89,26 +100,42 @@ def open_shell_chair() -> SignCase:
     seat_holes += [((-0.5, -0.1, -0.06), (-0.39, 0.1, 0.06)), ((0.39, -0.1, -0.06), (0.5, 0.1, 0.06))]
     back_holes = [((x - 0.06, 0.855, -0.5), (x + 0.06, 0.9, -0.3)) for x in (-0.25, 0.0, 0.25)]
     back_holes += [((-0.5, y - 0.06, -0.5), (-0.395, y + 0.06, -0.3)) for y in (0.3, 0.6)]
-    mesh = trimesh.util.concatenate([_box_surface_with_holes(seat, seat_holes), _box_surface_with_holes(back, back_holes)])
-    return SignCase("open double-walled shell", mesh, in_boxes([seat, back]),
-                    "the space between the walls is inside: a solid seat and back whose rims were left open "
-                    "(a flood-filled voxelisation leaves them hollow; no test of the mesh can know which was meant)")
+    mesh = trimesh.util.concatenate(
+        [_box_surface_with_holes(seat, seat_holes), _box_surface_with_holes(back, back_holes)]
+    )
+    return SignCase(
+        "open double-walled shell",
+        mesh,
+        in_boxes([seat, back]),
+        "the space between the walls is inside: a solid seat and back whose rims were left open "
+        "(a flood-filled voxelisation leaves them hollow; no test of the mesh can know which was meant)",
+    )
 
 
 def sheet_chair() -> SignCase:
     """Seat and back each a single sheet meeting at an edge, on four closed legs: sheets enclose nothing."""
     seat = trimesh.Trimesh([[-0.4, 0, -0.4], [0.4, 0, -0.4], [0.4, 0, 0.4], [-0.4, 0, 0.4]], [[0, 2, 1], [0, 3, 2]])
-    back = trimesh.Trimesh([[-0.4, 0, -0.4], [0.4, 0, -0.4], [0.4, 0.8, -0.4], [-0.4, 0.8, -0.4]], [[0, 1, 2], [0, 2, 3]])
+    back = trimesh.Trimesh(
+        [[-0.4, 0, -0.4], [0.4, 0, -0.4], [0.4, 0.8, -0.4], [-0.4, 0.8, -0.4]], [[0, 1, 2], [0, 2, 3]]
+    )
     legs = [((x - 0.04, -0.8, z - 0.04), (x + 0.04, -0.01, z + 0.04)) for x in (-0.33, 0.33) for z in (-0.33, 0.33)]
     mesh = trimesh.util.concatenate([seat, back, union_of_closed_boxes(legs)])
-    return SignCase("chair of bare sheets on closed legs", mesh, in_boxes(legs),
-                    "only the legs are inside; the wedge between seat and back sheets is outside")
+    return SignCase(
+        "chair of bare sheets on closed legs",
+        mesh,
+        in_boxes(legs),
+        "only the legs are inside; the wedge between seat and back sheets is outside",
+    )
 
 
 def broken_soup(seed: int = 0) -> SignCase:
     """Three boxes: randomly flipped faces, one inside-out, duplicated and inner faces, a non-manifold edge and fin."""
     rng = np.random.default_rng(seed)
-    a, b, c = ((-0.5, -0.5, -0.25), (0.0, 0.0, 0.25)), ((0.0, 0.0, -0.25), (0.5, 0.5, 0.25)), ((-0.3, -0.7, -0.1), (-0.1, -0.3, 0.1))
+    a, b, c = (
+        ((-0.5, -0.5, -0.25), (0.0, 0.0, 0.25)),
+        ((0.0, 0.0, -0.25), (0.5, 0.5, 0.25)),
+        ((-0.3, -0.7, -0.1), (-0.1, -0.3, 0.1)),
+    )
     box_a = box_mesh(a).subdivide()
     faces_a = box_a.faces.copy()
     flip = rng.random(len(faces_a)) < 0.5
@@ -119,18 +146,28 @@ def broken_soup(seed: int = 0) -> SignCase:
         box_mesh(c),  # overlaps A
         trimesh.Trimesh(box_a.vertices, box_a.faces[:6][:, ::-1], process=False),  # faces stored twice, once per side
         trimesh.Trimesh([[0.5, 0.5, -0.25], [0.5, 0.5, 0.25], [0.8, 0.8, 0.0]], [[0, 1, 2]], process=False),  # fin
-        trimesh.Trimesh([[-0.4, -0.4, 0.0], [-0.1, -0.4, 0.0], [-0.25, -0.1, 0.0]], [[0, 1, 2]], process=False),  # inner
+        trimesh.Trimesh(
+            [[-0.4, -0.4, 0.0], [-0.1, -0.4, 0.0], [-0.25, -0.1, 0.0]], [[0, 1, 2]], process=False
+        ),  # inner
     ]
-    return SignCase("flipped and non-manifold soup", trimesh.util.concatenate(parts), in_boxes([a, b, c]),
-                    "the union of the three boxes is inside; fin and inner face change nothing")
+    return SignCase(
+        "flipped and non-manifold soup",
+        trimesh.util.concatenate(parts),
+        in_boxes([a, b, c]),
+        "the union of the three boxes is inside; fin and inner face change nothing",
+    )
 
 
 def sieve_sphere(seed: int = 0) -> SignCase:
     """A sphere of radius 0.8 with 6% of its faces missing at random."""
     sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.8)
     kept = np.random.default_rng(seed).random(len(sphere.faces)) > 0.06
-    return SignCase("sphere with 6% of faces missing", trimesh.Trimesh(sphere.vertices, sphere.faces[kept], process=False),
-                    lambda p: np.linalg.norm(p, axis=1) < 0.8, "the ball is inside")
+    return SignCase(
+        "sphere with 6% of faces missing",
+        trimesh.Trimesh(sphere.vertices, sphere.faces[kept], process=False),
+        lambda p: np.linalg.norm(p, axis=1) < 0.8,
+        "the ball is inside",
+    )
 
 
 def open_box() -> SignCase:
@@ -139,14 +176,20 @@ def open_box() -> SignCase:
     Not a known-answer case: the point of it is that no test of the mesh can know.
     """
     mesh = _box_surface_with_holes(((-0.5, -0.5, -0.5), (0.5, 0.5, 0.5)), [((-1, 0.45, -1), (1, 1, 1))], subdivisions=2)
-    return SignCase("box with one side missing", mesh, None,
-                    "cannot be told: a solid block missing its top, or an open container; the sign report flags it")
+    return SignCase(
+        "box with one side missing",
+        mesh,
+        None,
+        "cannot be told: a solid block missing its top, or an open container; the sign report flags it",
+    )
 
 
 def sheet() -> SignCase:
     """One square sheet: it encloses nothing."""
     mesh = trimesh.Trimesh([[-0.5, 0, -0.5], [0.5, 0, -0.5], [0.5, 0, 0.5], [-0.5, 0, 0.5]], [[0, 1, 2], [0, 2, 3]])
-    return SignCase("single sheet", mesh, lambda p: np.zeros(len(p), bool), "nothing is inside; rejected as enclosing no volume")
+    return SignCase(
+        "single sheet", mesh, lambda p: np.zeros(len(p), bool), "nothing is inside; rejected as enclosing no volume"
+    )
 
 
 KNOWN_ANSWER_CASES = (cabinet, drawer_table, open_shell_chair, sheet_chair, broken_soup, sieve_sphere)

@@ -27,7 +27,9 @@ def read_solid_binvox(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return occupancy, index_to_model
 
 
-def tolerant_truth(occupancy: np.ndarray, index_to_model: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def tolerant_truth(
+    occupancy: np.ndarray, index_to_model: np.ndarray, points: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """(checked [N], inside [N]) for model-frame points [N,3]: checked where the 3x3x3 voxels around agree."""
     padded = np.pad(occupancy.astype(bool), 1)  # beyond the grid is empty
     block = np.ones((3, 3, 3), bool)
