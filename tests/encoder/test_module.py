@@ -8,6 +8,7 @@ import torch
 
 from ushape.encoder.datamodule import EncoderDataModule
 from ushape.encoder.fit import fit_encoder
+from ushape.encoder.heads import ImageEncoder
 from ushape.encoder.losses import energy_score, l2_loss
 from ushape.encoder.module import EncoderModule, loss_config, optimizer_config
 
@@ -65,6 +66,16 @@ def test_the_configured_optimiser_is_built_over_the_trainable_parameters(world, 
     trainer.fit(model, datamodule=_datamodule(world, decoder_dir))
     optimiser = trainer.optimizers[0]
     assert isinstance(optimiser, torch.optim.AdamW) and optimiser.defaults["weight_decay"] == 0.05
+
+
+class TaggedEncoder(ImageEncoder):
+    """An ImageEncoder subclass named by the encoder config's `_target_`."""
+
+
+def test_the_encoder_configs_target_is_what_is_built(decoder_dir, tiny_encoder):
+    model = EncoderModule(str(decoder_dir), {**tiny_encoder, "_target_": "test_module.TaggedEncoder"}, ES)
+    assert type(model.encoder) is TaggedEncoder
+    assert type(EncoderModule(str(decoder_dir), tiny_encoder, ES).encoder) is ImageEncoder
 
 
 def test_training_moves_the_encoder_and_never_the_decoder(world, decoder_dir, tiny_encoder, tmp_path):

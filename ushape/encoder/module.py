@@ -22,6 +22,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import OmegaConf
 from torch import Tensor
 
+from ushape.builders import build
 from ushape.decoder.artifacts import codes_file, load_codes, load_decoder
 from ushape.encoder.figures import mesh_panel, render_code
 from ushape.encoder.heads import GaussianEnsemble, ImageEncoder
@@ -133,7 +134,7 @@ class EncoderModule(L.LightningModule):
         self.loss_fn = instantiate(loss)
         self._loss_takes_generator = "generator" in inspect.signature(self.loss_fn).parameters
         self.predicts_variance = getattr(self.loss_fn, "func", self.loss_fn) is not l2_loss
-        self.encoder = ImageEncoder(**{k: v for k, v in encoder.items() if k != "_target_"})
+        self.encoder = build(encoder, ImageEncoder)  # its `_target_` (an ImageEncoder subclass), else ImageEncoder
         # object.__setattr__ keeps the decoder out of parameters(), state_dict() and the optimiser.
         object.__setattr__(self, "decoder", load_decoder(decoder_path, frozen=True))
         decoder_latent = getattr(self.decoder, "latent_size", None)
