@@ -6,7 +6,7 @@ import torch
 from ushape.data.cameras import R2N2_FOV_DEG, look_at
 from ushape.data.rendering import pixel_rays
 from ushape.decoder.network import DeepSDFDecoder
-from ushape.propagation.decoding import frozen
+from ushape.decoder.query import frozen
 from ushape.propagation.linearised import sdf_gradients
 from ushape.propagation.monte_carlo import sample_codes
 from ushape.reconstruction.depth_implicit import (

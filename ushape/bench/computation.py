@@ -27,10 +27,9 @@ from ushape.bench.fitted import fitted_decoder
 from ushape.bench.timing import Measurement, timed
 from ushape.decoder.artifacts import codes_file, load_codes, load_decoder
 from ushape.decoder.folded import fold_code
-from ushape.decoder.query import code_sdf_fn
+from ushape.decoder.query import code_sdf_fn, frozen
 from ushape.fusion.rules import fuse_average, fuse_bayesian, fuse_bayesian_k
 from ushape.mesh.extraction import extract_mesh, marching_cubes
-from ushape.propagation.decoding import frozen
 from ushape.propagation.field import decode_field, narrow_band_field
 from ushape.propagation.mesh import grid_points, propagate, vertex_uncertainty
 from ushape.workspace import CONFIG_DIR

@@ -1,4 +1,9 @@
-"""A trained decoder and one latent code as an SDF callable over points in the normalised frame."""
+"""A trained decoder at one latent code: the SDF at many points, in chunks, and as a callable.
+
+The shared building block of every stage downstream (grids, meshes, propagation, depth): one place
+that checks a code and its points, folds the code into a DeepSDF network (`fold_code`), and runs the
+decoder frozen, in chunks of DEFAULT_CHUNK points, optionally under bf16 autocast.
+"""
 
 from __future__ import annotations
 
@@ -10,6 +15,9 @@ from torch import Tensor, nn
 from torch.nn.utils import parametrize
 
 from ushape.decoder.folded import fold_code
+from ushape.mesh.extraction import DEFAULT_CHUNK
+
+Decoder = Callable[[Tensor, Tensor], Tensor]  # (xyz [..., 3], z [..., D]) -> sdf [...]
 
 
 def decoder_autocast(device: torch.device | str, enabled: bool) -> torch.autocast:
@@ -20,37 +28,86 @@ def decoder_autocast(device: torch.device | str, enabled: bool) -> torch.autocas
 
 def decoder_device(decoder: nn.Module, default: torch.device | str = "cpu") -> torch.device:
     """Where the decoder's weights live; `default` for a decoder without any (an analytic SDF)."""
-    parameter = next(decoder.parameters(), None)
+    parameter = next(decoder.parameters(), None) if isinstance(decoder, nn.Module) else None
     return torch.device(default) if parameter is None else parameter.device
 
 
-def code_sdf_fn(decoder: nn.Module, code: Tensor, bf16: bool = False) -> Callable[[Tensor], Tensor]:
-    """points [P, 3] -> sdf [P] (float32, on the points' device) of the decoder at code [D].
+def decode_points(
+    decoder: Decoder,
+    z: Tensor,  # [D]
+    points: Tensor,  # [P, 3]
+    chunk: int = DEFAULT_CHUNK,
+    bf16: bool = False,
+) -> Tensor:  # [P]
+    """SDF f(x, z) at every point for one latent code, in chunks of `chunk` points, without gradients.
 
-    A DeepSDFDecoder in eval mode is evaluated with the code folded in (`fold_code`) unless bf16 is
-    asked for; the weights are read when this is called, so call it after the decoder is trained.
+    A DeepSDFDecoder runs with the code folded in (`fold_code`, unless bf16): same values, less work.
     """
+    if z.ndim != 1:
+        raise ValueError(f"z must be one latent code of shape [D], got {tuple(z.shape)}")
+    if not torch.isfinite(z).all():
+        raise ValueError("z holds NaN/inf: every SDF decoded from it would be NaN")
+    check_code_size(decoder, z.shape[0])
+    check_points(points)
+    check_chunk(chunk)
+    out = torch.empty(points.shape[0], dtype=output_dtype(points, bf16), device=points.device)
+    with frozen(decoder), torch.no_grad(), decoder_autocast(points.device, bf16):
+        folded = None if bf16 else fold_code(decoder, z)
+        for start in range(0, points.shape[0], chunk):
+            block = points[start : start + chunk]
+            out[start : start + block.shape[0]] = decoder(block, z) if folded is None else folded.sdf(block)
+    return out
+
+
+def code_sdf_fn(decoder: nn.Module, code: Tensor, bf16: bool = False) -> Callable[[Tensor], Tensor]:
+    """points [P, 3] -> sdf [P] (float32, on the points' device) of the decoder at code [D] (`decode_points`)."""
     if code.ndim != 1:
         raise ValueError(f"code must be one latent vector [D], got {tuple(code.shape)}")
     device = decoder_device(decoder, code.device)
     code = code.detach().to(device)
-    folded = None if bf16 else fold_code(decoder, code)
-    if folded is not None:
-        dtype = decoder.layers[0].bias.dtype
-
-        def folded_sdf(points: Tensor) -> Tensor:
-            with torch.no_grad():
-                values = folded.sdf(points.to(device=device, dtype=dtype))
-            return values.float().to(points.device)
-
-        return folded_sdf
 
     def sdf(points: Tensor) -> Tensor:
-        with torch.no_grad(), decoder_autocast(device, bf16):
-            values = decoder(points.to(device), code)
-        return values.float().to(points.device)
+        return decode_points(decoder, code, points.to(device), bf16=bf16).float().to(points.device)
 
     return sdf
+
+
+def check_latent_gaussian(mu: Tensor, var: Tensor) -> None:
+    """Raise a ValueError unless mu, var are one diagonal Gaussian over the latent code: [D] each, var >= 0."""
+    if mu.ndim != 1 or mu.shape != var.shape:
+        raise ValueError(
+            f"expected one latent Gaussian with mu [D] and var [D], got {tuple(mu.shape)} and {tuple(var.shape)}"
+        )
+    if not (torch.isfinite(mu).all() and torch.isfinite(var).all()):
+        raise ValueError("mu or var holds NaN/inf; the latent Gaussian must be finite")
+    if (var < 0).any():
+        raise ValueError("var must be >= 0 (a variance, not a log-variance or a standard deviation)")
+
+
+def check_code_size(decoder: Decoder, size: int) -> None:
+    """Raise a ValueError if the decoder declares a latent size (`latent_size`) other than `size`."""
+    expected = getattr(decoder, "latent_size", None)
+    if expected is not None and int(expected) != size:
+        raise ValueError(
+            f"the code has {size} dimensions but the decoder takes {expected}: "
+            "was it encoded for another decoder (or another latent basis)?"
+        )
+
+
+def check_points(points: Tensor) -> None:
+    """Raise a ValueError unless points is [P, 3]."""
+    if points.ndim != 2 or points.shape[-1] != 3:
+        raise ValueError(f"points must have shape [P, 3], got {tuple(points.shape)}")
+
+
+def check_chunk(chunk: int) -> None:
+    if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
+        raise ValueError(f"chunk (points per decoder pass) must be a positive integer, got {chunk!r}")
+
+
+def output_dtype(points: Tensor, bf16: bool) -> torch.dtype:
+    """SDFs come back in the points' dtype; bf16 runs come back in float32 for the statistics."""
+    return torch.float32 if bf16 else points.dtype
 
 
 @contextmanager

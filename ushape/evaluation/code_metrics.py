@@ -23,7 +23,7 @@ from torch import Tensor
 
 from ushape import atomic
 from ushape.data.layout import WorldIndex
-from ushape.mesh.extraction import EmptySurfaceError, marching_cubes, sdf_grid
+from ushape.mesh.extraction import EmptySurfaceError, marching_cubes
 from ushape.metrics.pix3d import (
     PIX3D_POINTS,
     PIX3D_VOXELS,
@@ -32,7 +32,7 @@ from ushape.metrics.pix3d import (
     pix3d_metrics,
     reference_from_mesh,
 )
-from ushape.propagation import decode_points, frozen
+from ushape.propagation.field import decode_field
 
 # An empty reconstruction overlaps nothing; CD and EMD have no value.
 EMPTY_SCORES = {"iou": 0.0, "cd": math.nan, "emd": math.nan}
@@ -43,22 +43,6 @@ def code_hash(decoder_tag: str, code: Tensor, resolution: int, shape_id: str) ->
     digest = hashlib.sha1(f"{decoder_tag}|{resolution}|{shape_id}|".encode())
     digest.update(code.detach().float().cpu().contiguous().numpy().tobytes())
     return digest.hexdigest()[:24]
-
-
-def sdf_of(decoder, code: Tensor, bf16: bool = False):
-    """points [P, 3] -> SDF [P] of one code [D], chunked, without gradients (bf16 pays off only with AMX or a GPU)."""
-    return lambda points: decode_points(decoder, code, points, bf16=bf16)
-
-
-def decode_grid(decoder, code: Tensor, resolution: int, bf16: bool = False) -> Tensor:
-    """The code's SDF on the dense N^3 grid over [-1, 1]^3 (grid[i, j, k] at (x_i, y_j, z_k)). -> [N, N, N]
-
-    Dense on purpose: a decoder trained on SDFs clamped at 0.1 saturates away from the surface, so
-    the coarse-to-fine pruning (which needs |sdf| > a block's half diagonal) evaluates nearly every
-    point anyway, plus its overhead.
-    """
-    with frozen(decoder):
-        return sdf_grid(sdf_of(decoder, code, bf16), resolution)
 
 
 def grid_inside_fn(grid: Tensor) -> InsideFn:
@@ -79,7 +63,7 @@ def grid_inside_fn(grid: Tensor) -> InsideFn:
 
 def decode_mesh(decoder, code: Tensor, resolution: int, bf16: bool = False) -> trimesh.Trimesh:
     """Mesh of the decoder's zero level set for one code [D] (marching cubes on the dense grid)."""
-    return marching_cubes(decode_grid(decoder, code, resolution, bf16))
+    return marching_cubes(decode_field(decoder, code, resolution, bf16=bf16))
 
 
 class Reconstructor:
@@ -126,7 +110,9 @@ class Reconstructor:
         if cached is not None and (not emd or "emd" in cached):
             return cached
         try:
-            grid = decode_grid(self.decoder, code, self.resolution, self.bf16)
+            # Dense on purpose: a decoder trained on SDFs clamped at 0.1 saturates away from the surface,
+            # so coarse-to-fine pruning would evaluate nearly every point anyway, plus its overhead.
+            grid = decode_field(self.decoder, code, self.resolution, bf16=self.bf16)
             mesh = marching_cubes(grid)
             result = pix3d_metrics(
                 mesh, grid_inside_fn(grid), self.reference(shape_id), emd=emd or (cached or {}).get("emd") is not None

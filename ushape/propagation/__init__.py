@@ -1,6 +1,6 @@
 """Uncertainty propagation: a Gaussian over the latent code -> mean and variance of the SDF at points."""
 
-from ushape.propagation.decoding import decode_points, frozen
+from ushape.decoder.query import decode_points, frozen
 from ushape.propagation.field import BandField, decode_field, field_uncertainty, narrow_band_field
 from ushape.propagation.linearised import propagate_linearised
 from ushape.propagation.mesh import METHODS, grid_points, propagate, vertex_uncertainty

@@ -22,8 +22,8 @@ import torch
 from torch import Tensor
 from torch.nn import functional as F
 
+from ushape.decoder.query import Decoder, check_code_size, check_latent_gaussian, decode_points
 from ushape.mesh.extraction import DEFAULT_CHUNK, coarse_to_fine_grid
-from ushape.propagation.decoding import Decoder, check_code_size, check_latent_gaussian, decode_points
 from ushape.propagation.mesh import grid_points, propagate
 
 BAND_METHODS = ("linearised", "mc")

@@ -6,17 +6,17 @@ import torch
 from torch import Tensor
 
 from ushape.decoder.folded import fold_code
-from ushape.mesh.extraction import DEFAULT_CHUNK
-from ushape.propagation.decoding import (
+from ushape.decoder.query import (
     Decoder,
-    autocast,
     check_chunk,
     check_code_size,
     check_latent_gaussian,
     check_points,
+    decoder_autocast,
     frozen,
     output_dtype,
 )
+from ushape.mesh.extraction import DEFAULT_CHUNK
 
 
 def sdf_gradients(
@@ -38,7 +38,7 @@ def sdf_gradients(
     xyz = points.detach().clone().requires_grad_(with_xyz)
     leaves = (z_per_point, xyz) if with_xyz else (z_per_point,)
     with torch.enable_grad():
-        with autocast(bf16, points.device):
+        with decoder_autocast(points.device, bf16):
             sdf = decoder(xyz, z_per_point)
         grads = torch.autograd.grad(sdf.sum(), leaves, allow_unused=True)
     grads = [torch.zeros_like(leaf) if g is None else g.detach() for g, leaf in zip(grads, leaves)]

@@ -5,8 +5,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from ushape.decoder.query import Decoder
 from ushape.mesh.extraction import grid_points as mesh_grid_points
-from ushape.propagation.decoding import Decoder
 from ushape.propagation.linearised import propagate_linearised
 from ushape.propagation.monte_carlo import propagate_mc
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ushape.propagation.decoding import (
+from ushape.decoder.query import (
     Decoder,
-    autocast,
     check_chunk,
     check_code_size,
     check_latent_gaussian,
     check_points,
+    decoder_autocast,
     frozen,
     output_dtype,
 )
@@ -73,7 +73,7 @@ def code_statistics(
         for start in range(0, n_points, chunk):
             block = points[start : start + chunk]
             stop = start + block.shape[0]
-            with autocast(bf16, points.device):
+            with decoder_autocast(points.device, bf16):
                 sdf = decoder(block.unsqueeze(0), codes)  # [M, Pc]
             sdf = sdf.to(dtype)
             mean[start:stop] = sdf.mean(dim=0)

@@ -28,9 +28,9 @@ import torch
 from torch import Tensor
 
 from ushape.decoder.folded import fold_code
+from ushape.decoder.query import Decoder, check_code_size, check_latent_gaussian, frozen
 from ushape.encoder.latent_metrics import spearman_correlation
 from ushape.mesh.extraction import DEFAULT_CHUNK
-from ushape.propagation.decoding import Decoder, check_code_size, check_latent_gaussian, frozen
 from ushape.propagation.linearised import sdf_gradients
 from ushape.reconstruction.sphere_tracing import DepthStats, camera_rays, codes_sdf, depth_uncertainty, sphere_trace
 

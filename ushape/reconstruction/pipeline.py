@@ -24,10 +24,9 @@ from torch import Tensor
 from ushape import atomic
 from ushape.data.cameras import R2N2_FOV_DEG, look_at
 from ushape.data.layout import VIEWS_FILE
-from ushape.decoder.query import code_sdf_fn
+from ushape.decoder.query import code_sdf_fn, frozen
 from ushape.fusion.rules import FusedCode
 from ushape.mesh.extraction import extract_mesh
-from ushape.propagation.decoding import frozen
 from ushape.propagation.mesh import METHODS, vertex_uncertainty
 from ushape.propagation.monte_carlo import sample_codes
 from ushape.reconstruction.depth_implicit import DEPTH_METHODS, depth_stats

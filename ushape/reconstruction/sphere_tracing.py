@@ -17,7 +17,7 @@ import torch
 from torch import Tensor
 
 from ushape.data.rendering import pixel_rays
-from ushape.propagation.decoding import frozen
+from ushape.decoder.query import frozen
 
 BatchSDF = Callable[[Tensor, Tensor], Tensor]  # (points [N, 3], code index [N]) -> sdf [N]
 
