@@ -19,7 +19,7 @@ REPO = Path(__file__).resolve().parents[2]
 N_TRAIN, VIEWS, SHAPES_PER_BATCH, IMAGES_PER_BATCH, EPOCHS = 4, 2, 2, 2, 2
 
 TINY_DDP = [
-    "experiment=quickstart",
+    "experiment=quickstart_finetune",  # the image path (the backbone trains) under DDP
     f"data.n_train={N_TRAIN}",
     "data.n_val=1",
     "data.n_test=1",
