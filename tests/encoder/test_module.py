@@ -52,6 +52,9 @@ def test_optimizer_configs_and_the_names_older_checkpoints_hold():
         "momentum": 0.9,
     }
     assert optimizer_config("adamw", lr=0.5)["_target_"] == "torch.optim.AdamW"
+    # An older Adam checkpoint's hparams (momentum 0.9 was saved for every optimiser) still build Adam.
+    legacy = optimizer_config("adam", lr=1e-3, momentum=0.9, weight_decay=0.0)
+    assert legacy == {"_target_": "torch.optim.Adam", "_partial_": True, "lr": 1e-3, "weight_decay": 0.0}
     with pytest.raises(ValueError, match="_target_"):
         optimizer_config({"lr": 0.1})
     with pytest.raises(ValueError, match="adam"):

@@ -72,6 +72,8 @@ def optimizer_config(
         config = {"_target_": NAMED_OPTIMIZERS[optimizer], "_partial_": True, "lr": 0.1, "weight_decay": 1e-4}
         if optimizer == "sgd":
             config["momentum"] = 0.9
+        else:  # those checkpoints hold momentum=0.9 whatever the optimiser; only SGD took it
+            momentum = None
     elif isinstance(optimizer, Mapping) and "_target_" in optimizer:
         config = {**optimizer, "_partial_": True}
     else:
