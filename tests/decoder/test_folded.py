@@ -85,3 +85,16 @@ def test_multiply_adds_count_every_product():
     assert forward == 32 * 3 + 21 * 32 + 32 * 24 + 32 * 32 + 1 * 32
     # backward: through layers 4..1 (their hidden weights) plus the code columns of layers 0 and 2
     assert backward == 1 * 32 + 32 * 32 + 32 * 21 + 21 * 32 + 32 * 8 + 32 * 8
+
+
+def test_code_sdf_fn_takes_float32_points_for_a_float64_decoder():
+    """Extraction hands float32 points; a float64 decoder still answers, in float32, as it did."""
+    torch.manual_seed(0)
+    decoder = DeepSDFDecoder(latent_size=4, hidden_dims=[16, 16], latent_in=[1], dropout=0.0).double().eval()
+    code = 0.1 * torch.randn(4, dtype=torch.float64)
+    points = torch.rand(50, 3) * 2 - 1
+    values = code_sdf_fn(decoder, code)(points)
+    assert values.dtype == torch.float32
+    with torch.no_grad():
+        expected = decoder(points.double(), code).float()
+    assert torch.allclose(values, expected, atol=1e-6)

@@ -64,10 +64,12 @@ def code_sdf_fn(decoder: nn.Module, code: Tensor, bf16: bool = False) -> Callabl
     if code.ndim != 1:
         raise ValueError(f"code must be one latent vector [D], got {tuple(code.shape)}")
     device = decoder_device(decoder, code.device)
-    code = code.detach().to(device)
+    weights = next(decoder.parameters(), None) if isinstance(decoder, nn.Module) else None
+    dtype = code.dtype if weights is None else weights.dtype  # points come in float32; a decoder may be float64
+    code = code.detach().to(device=device, dtype=dtype)
 
     def sdf(points: Tensor) -> Tensor:
-        return decode_points(decoder, code, points.to(device), bf16=bf16).float().to(points.device)
+        return decode_points(decoder, code, points.to(device=device, dtype=dtype), bf16=bf16).float().to(points.device)
 
     return sdf
 
