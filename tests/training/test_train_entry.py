@@ -69,6 +69,7 @@ def test_sweep_over_losses_trains_one_decoder_and_two_encoders(tmp_path):
         blob = torch.load(s["encoder_checkpoint"], map_location="cpu", weights_only=False)
         assert any(key.startswith("EarlyStopping") for key in blob["callbacks"]), list(blob["callbacks"])
         # One val shape from its first view and from both views; a 1-epoch encoder may give no surface.
+        assert sorted(row["name"] for row in s["demo"]) == sorted(p.name for p in Path(s["meshes"]).iterdir())
         folders = sorted(p.name for p in Path(s["meshes"]).iterdir())
         assert len(folders) == 2 and folders[0].endswith("_1view") and folders[1].endswith("_2views"), folders
         for folder in Path(s["meshes"]).iterdir():

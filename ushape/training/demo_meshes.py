@@ -11,6 +11,7 @@ default), both coloured on the single view's scale so the two can be compared by
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 from pathlib import Path
 from typing import Callable
@@ -63,3 +64,25 @@ def write_demo_meshes(
             # The single view's colour scale for the fused one too: less uncertainty looks darker.
             settings = dataclasses.replace(settings, std_max=float(summary["files"]["std_max"]))
     return out_dir
+
+
+def demo_digest(meshes_dir: str | Path) -> list[dict]:
+    """Per demo reconstruction: its folder name, views fused, latent covariance trace, mean vertex std,
+    overview picture; or the empty-surface note. What a run prints at its end."""
+    rows = []
+    for folder in sorted(p for p in Path(meshes_dir).iterdir() if p.is_dir()):
+        record = folder / "summary.json"
+        if not record.is_file():
+            rows.append({"name": folder.name, "empty": True})
+            continue
+        summary = json.loads(record.read_text())
+        rows.append(
+            {
+                "name": folder.name,
+                "views": len(summary["views"]),
+                "trace": summary["fused"]["trace_var"],
+                "std_mean": summary["mesh"]["std_mean"],
+                "overview": summary["files"]["overview"],
+            }
+        )
+    return sorted(rows, key=lambda row: (row.get("views", 0), row["name"]))  # one view first, then all

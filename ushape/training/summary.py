@@ -36,9 +36,21 @@ def print_summary(summary: Mapping[str, Any], out_dir: Path) -> None:
         "seconds": "Seconds:",
     }
     lines += [f"{label:<13} {summary[key]}" for key, label in labels.items() if key in summary]
+    for row in summary.get("demo", []):
+        if row.get("empty"):
+            lines.append(f"Demo:         {row['name']}: no surface (see its empty_surface.txt)")
+        else:
+            lines.append(
+                f"Demo:         {row['name']}: {row['views']} view(s), latent trace {row['trace']:.3f}, "
+                f"mean vertex std {row['std_mean']:.4f} -> {row['overview']}"
+            )
     if "tensorboard" in summary:
         lines.append(f"Watch with:   tensorboard --logdir {summary['tensorboard']}")
-    Console(soft_wrap=True).print("\n".join(lines), highlight=False)
+    if "encoder_checkpoint" in summary:
+        lines.append(
+            f"Next:         python eval.py runs=[{out_dir}]   |   python reconstruct.py your_photo.png --run {out_dir}"
+        )
+    Console(soft_wrap=True).print("\n".join(lines), highlight=False, markup=False)
 
 
 # What Hydra and `print_config` write into every run folder before any work: no result in them.

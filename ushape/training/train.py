@@ -22,7 +22,7 @@ from ushape.decoder.fit import fit_decoder
 from ushape.decoder.recode import ensure_codes
 from ushape.encoder.fit import fit_encoder
 from ushape.training.decoder_store import decoder_dir_for, ensure_decoder, legacy_decoder_dir_for
-from ushape.training.demo_meshes import write_demo_meshes
+from ushape.training.demo_meshes import demo_digest, write_demo_meshes
 from ushape.training.interrupts import resume_command, resume_exit, stopping_signal, watch_signals
 from ushape.training.summary import discard_if_bookkeeping_only, print_config, print_summary
 from ushape.training.validation import ConfigError, check_config
@@ -105,6 +105,7 @@ def _train(cfg: DictConfig, out_dir: Path, main: bool) -> float | None:
         )
         if meshes is not None:
             summary["meshes"] = str(meshes)
+            summary["demo"] = demo_digest(meshes)
         summary["tensorboard"] = str(out_dir / "tensorboard")
         metric = _checkpoint_score(checkpoint)
     elif not main:
