@@ -63,9 +63,9 @@ def code_sdf_fn(decoder: nn.Module, code: Tensor, bf16: bool = False) -> Callabl
     """points [P, 3] -> sdf [P] (float32, on the points' device) of the decoder at code [D] (`decode_points`)."""
     if code.ndim != 1:
         raise ValueError(f"code must be one latent vector [D], got {tuple(code.shape)}")
-    device = decoder_device(decoder, code.device)
     weights = next(decoder.parameters(), None) if isinstance(decoder, nn.Module) else None
-    dtype = code.dtype if weights is None else weights.dtype  # points come in float32; a decoder may be float64
+    # Points come in float32 and a decoder may be float64; one without weights takes the code's.
+    device, dtype = (code.device, code.dtype) if weights is None else (weights.device, weights.dtype)
     code = code.detach().to(device=device, dtype=dtype)
 
     def sdf(points: Tensor) -> Tensor:
