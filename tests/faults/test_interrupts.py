@@ -17,37 +17,19 @@ from pathlib import Path
 
 import pytest
 import torch
+from tiny_runs import tiny_train
 
 REPO = Path(__file__).resolve().parents[2]
-TINY = [
-    "experiment=quickstart",
-    "data.n_train=3",
-    "data.n_val=1",
-    "data.n_test=1",
-    "data.samples_per_shape=4000",
-    "data.n_views=2",
-    "data.image_size=32",
-    "data.mesh_resolution=64",
-    "data.num_workers=0",
-    "stage1.module.val_every_n_epochs=1000",
-    "stage1.module.val_mesh_resolution=16",
-    "stage1.data.num_workers=0",
-    "stage1.data.shapes_per_batch=3",
-    "stage1.data.samples_per_shape=256",
-    "stage1.data.val_num_shapes=1",
-    "stage1.latent_optim.iterations=3",
-    "stage1.latent_optim.samples_per_iter=256",
-    "stage1.checkpoint_every_n_epochs=1",
-    "stage2.data.image_size=32",
-    "stage2.data.batch_size=4",
-    "stage2.data.num_workers=0",
-    "stage2.module.log_meshes=false",
-    "stage2.module.val_samples=20",
-    "encoder.backbone.pretrained=false",
-    "stage2.demo_meshes.resolution=16",
-    "trainer.enable_progress_bar=false",
-    "+trainer.enable_model_summary=false",
-]
+TINY = tiny_train(
+    {
+        "stage1.module.val_every_n_epochs": 1000,
+        "stage1.data.num_workers": 0,
+        "stage1.checkpoint_every_n_epochs": 1,
+        "stage2.data.num_workers": 0,
+        "stage2.demo_meshes.resolution": 16,
+    },
+    drop=("stage1.max_epochs", "stage2.max_epochs"),  # the tests set their own epochs
+)
 TIMEOUT_S = 240
 
 

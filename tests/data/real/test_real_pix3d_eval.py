@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
+from tiny_runs import tiny_train
 
 from ushape.data.cameras import look_at
 from ushape.data.layout import WorldIndex
@@ -118,34 +119,15 @@ def test_pix3d_world_has_one_view_per_filtered_photo(pix3d_sample, tmp_path):
     assert WorldIndex.load(index.root).view_count("chair__IKEA_HENRIKSDAL") == 10
 
 
-TINY_TRAIN = [
-    "experiment=quickstart",
-    "data.n_train=3",
-    "data.n_val=1",
-    "data.n_test=1",
-    "data.samples_per_shape=3000",
-    "data.n_views=2",
-    "data.image_size=32",
-    "data.mesh_resolution=48",
-    "data.num_workers=0",
-    "stage1.max_epochs=2",
-    "stage1.module.val_every_n_epochs=2",
-    "stage1.module.val_mesh_resolution=16",
-    "stage1.data.shapes_per_batch=3",
-    "stage1.data.samples_per_shape=256",
-    "stage1.data.val_num_shapes=1",
-    "stage1.latent_optim.iterations=3",
-    "stage1.latent_optim.samples_per_iter=256",
-    "stage2.max_epochs=1",
-    "stage2.data.image_size=32",
-    "stage2.data.batch_size=3",
-    "stage2.module.log_meshes=false",
-    "stage2.module.val_samples=20",
-    "stage2.demo_meshes.shapes=0",
-    "encoder.backbone.pretrained=false",
-    "trainer.enable_progress_bar=false",
-    "+trainer.enable_model_summary=false",
-]
+TINY_TRAIN = tiny_train(
+    {
+        "data.samples_per_shape": 3000,
+        "data.mesh_resolution": 48,
+        "stage2.data.batch_size": 3,
+        "stage2.demo_meshes.shapes": 0,
+    },
+    drop=("stage2.demo_meshes.resolution",),
+)
 TINY_EVAL = [
     "data.samples_per_shape=3000",
     "data.image_size=32",
