@@ -7,7 +7,7 @@ import pytest
 import scoringrules as sr
 import torch
 
-from ushape.encoder.losses import energy_score, energy_score_from_samples, gaussian_nll, l2_loss
+from ushape.encoder.losses import energy_score, energy_score_from_samples, ensemble_loss, gaussian_nll, l2_loss
 
 
 def paper_es_numpy(samples, target):
@@ -130,3 +130,43 @@ def test_shape_mismatch_is_a_clear_error(loss):
 def test_es_needs_two_samples():
     with pytest.raises(ValueError, match="n_samples >= 2"):
         energy_score(torch.zeros(1, 2), torch.zeros(1, 2), torch.zeros(1, 2), n_samples=1)
+
+
+def _ensemble_grads(cross_fit: bool):
+    torch.manual_seed(0)
+    mus = torch.randn(2, 6, 3, requires_grad=True)
+    logvars = torch.randn(2, 6, 3, requires_grad=True)
+    member_of = torch.tensor([[True, True, True, False, False, False], [False, True, False, True, False, True]])
+    ensemble_loss(gaussian_nll, mus, logvars, torch.randn(6, 3), member_of, cross_fit).backward()
+    return mus.grad.abs().sum(-1) > 0, logvars.grad.abs().sum(-1) > 0, member_of
+
+
+def test_plain_ensemble_loss_fits_each_member_on_its_own_share_only():
+    mean_moves, var_moves, member_of = _ensemble_grads(cross_fit=False)
+    assert torch.equal(mean_moves, member_of) and torch.equal(var_moves, member_of)
+
+
+def test_cross_fitted_ensemble_loss_fits_the_variance_on_the_rows_the_mean_never_saw():
+    mean_moves, var_moves, member_of = _ensemble_grads(cross_fit=True)
+    assert torch.equal(mean_moves, member_of) and torch.equal(var_moves, ~member_of)
+
+
+def test_ensemble_loss_by_hand_and_its_shape_checks():
+    mus, logvars = torch.zeros(2, 2, 1), torch.zeros(2, 2, 1)
+    target = torch.tensor([[1.0], [3.0]])
+    member_of = torch.tensor([[True, False], [False, True]])
+    # member 0 scores row 0 (0.5 * 1), member 1 row 1 (0.5 * 9): mean 2.5
+    assert ensemble_loss(gaussian_nll, mus, logvars, target, member_of).item() == pytest.approx(2.5)
+    # cross-fitted, each member also scores the other row with its variance: 0.5 * (1 + 9) per member
+    assert ensemble_loss(gaussian_nll, mus, logvars, target, member_of, cross_fit=True).item() == pytest.approx(5.0)
+    with pytest.raises(ValueError, match="member_of must be bool"):
+        ensemble_loss(gaussian_nll, mus, logvars, target, member_of.float())
+    with pytest.raises(ValueError, match=r"\[E, B, D\]"):
+        ensemble_loss(gaussian_nll, mus[0], logvars[0], target, member_of)
+
+
+def test_cross_fit_needs_an_ensemble_that_leaves_shapes_out():
+    from ushape.encoder.heads import GaussianEnsemble
+
+    with pytest.raises(ValueError, match="keep must be < 1"):
+        GaussianEnsemble(in_dim=4, latent_size=2, members=3, keep=1.0, cross_fit=True)

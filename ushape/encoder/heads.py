@@ -95,14 +95,26 @@ class GaussianEnsemble(nn.Module):
     A head fitted to the shapes it memorised reports only the error it made on them; on a new shape
     its variance is too small (measured at quickstart scale: 2-3x). Heads that saw different shapes
     disagree most on unfamiliar ones, and the mixture's variance (`mixture_moments`) adds that
-    disagreement. `member_of(shape_ids)` says which members train on which shapes.
+    disagreement. `member_of(shape_ids)` says which members train on which shapes. With `cross_fit`
+    each member's variance is fitted on the shapes outside its share instead (`losses.ensemble_loss`),
+    which needs keep < 1.
     """
 
-    def __init__(self, in_dim: int, latent_size: int = 64, members: int = 5, keep: float = 2 / 3, **head) -> None:
+    def __init__(
+        self,
+        in_dim: int,
+        latent_size: int = 64,
+        members: int = 5,
+        keep: float = 2 / 3,
+        cross_fit: bool = False,
+        **head,
+    ) -> None:
         super().__init__()
         if members < 2 or not 0 < keep <= 1:
             raise ValueError(f"an ensemble needs members >= 2 and keep in (0, 1]; got {members}, {keep}")
-        self.keep = keep
+        if cross_fit and keep >= 1:
+            raise ValueError("cross_fit fits each member's variance on the shapes it skips: keep must be < 1")
+        self.keep, self.cross_fit = keep, cross_fit
         self.members = nn.ModuleList(GaussianHead(in_dim, latent_size, **head) for _ in range(members))
 
     @property
@@ -135,7 +147,8 @@ class ImageEncoder(nn.Module):
     `backbone` is a Hydra config whose `_target_` is a builder in `ushape.encoder.backbones`
     returning (feature extractor, feature dim). `freeze_backbone` keeps its ImageNet weights and
     batch-norm statistics as they are (only the head trains, and its features can be cached);
-    `members` > 1 makes the head a bootstrap ensemble (GaussianEnsemble).
+    `members` > 1 makes the head a bootstrap ensemble (GaussianEnsemble); `cross_fit` fits its members'
+    variances on held-out residuals.
     """
 
     def __init__(
@@ -148,8 +161,11 @@ class ImageEncoder(nn.Module):
         dropout: float = 0.0,
         members: int = 1,
         freeze_backbone: bool = False,
+        cross_fit: bool = False,
     ) -> None:
         super().__init__()
+        if cross_fit and members < 2:
+            raise ValueError("cross_fit needs an ensemble head: set encoder.members >= 2 (e.g. 5)")
         if OmegaConf.is_config(backbone):
             backbone = OmegaConf.to_container(backbone, resolve=True)
         if "_target_" not in backbone:
@@ -157,7 +173,7 @@ class ImageEncoder(nn.Module):
         self.backbone, self.feature_dim = instantiate(dict(backbone))
         head = {"logvar_min": logvar_min, "logvar_max": logvar_max, "hidden": hidden, "dropout": dropout}
         self.head = (
-            GaussianEnsemble(self.feature_dim, latent_size, members, **head)
+            GaussianEnsemble(self.feature_dim, latent_size, members, cross_fit=cross_fit, **head)
             if members > 1
             else GaussianHead(self.feature_dim, latent_size, **head)
         )

@@ -6,6 +6,8 @@ can swap them with a Hydra `_partial_`; each returns the mean over the batch of 
 
 from __future__ import annotations
 
+from typing import Callable
+
 import torch
 from torch import Tensor
 
@@ -66,3 +68,42 @@ def l2_loss(mu: Tensor, logvar: Tensor | None, target: Tensor) -> Tensor:
     """FroDO*'s deterministic baseline: mean over batch and dimensions of (mu - z)^2; logvar is unused."""
     _check(mu, None, target)
     return ((mu - target) ** 2).mean()
+
+
+def ensemble_loss(
+    loss_fn: Callable[..., Tensor],
+    mus: Tensor,  # [E, B, D]
+    logvars: Tensor,  # [E, B, D]
+    target: Tensor,  # [B, D]
+    member_of: Tensor,  # bool [E, B]
+    cross_fit: bool = False,
+) -> Tensor:
+    """Mean over the E members of `loss_fn` on each member's share of the batch (GaussianEnsemble).
+
+    Plain: member e fits its mean and variance on the rows it trains on (member_of[e]). A head
+    fitted on shapes it has memorised learns their small, in-sample residuals, so its variance
+    says little about a new shape. With `cross_fit`, member e's mean still fits its own rows
+    (its variance held fixed there), while its variance fits the other rows, against its own mean
+    held fixed: residuals of shapes that mean has never seen, i.e. the errors it makes on new ones.
+    A member with no row of a kind in this batch stays in the graph with weight 0 (DDP).
+    """
+    if mus.ndim != 3 or logvars.shape != mus.shape or target.shape != mus.shape[1:]:
+        raise ValueError(
+            f"mus, logvars must be [E, B, D] and target [B, D]; got "
+            f"{tuple(mus.shape)}, {tuple(logvars.shape)}, {tuple(target.shape)}"
+        )
+    if member_of.shape != mus.shape[:2] or member_of.dtype != torch.bool:
+        raise ValueError(f"member_of must be bool [E, B] = {tuple(mus.shape[:2])}, got {tuple(member_of.shape)}")
+    losses = []
+    for mu, logvar, rows in zip(mus, logvars, member_of):
+        if not cross_fit:
+            if rows.any():
+                losses.append(loss_fn(mu[rows], logvar[rows], target[rows]))
+            continue
+        member = [loss_fn(mu[rows], logvar[rows].detach(), target[rows])] if rows.any() else []
+        if (~rows).any():
+            member.append(loss_fn(mu[~rows].detach(), logvar[~rows], target[~rows]))
+        if member:
+            losses.append(torch.stack(member).sum())
+    total = torch.stack(losses).mean() if losses else mus.sum() * 0.0
+    return total + 0.0 * (mus.sum() + logvars.sum())

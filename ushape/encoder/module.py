@@ -27,7 +27,7 @@ from ushape.decoder.artifacts import codes_file, load_codes, load_decoder
 from ushape.encoder.figures import mesh_panel, render_code
 from ushape.encoder.heads import GaussianEnsemble, ImageEncoder
 from ushape.encoder.latent_metrics import latent_scores
-from ushape.encoder.losses import l2_loss
+from ushape.encoder.losses import ensemble_loss, l2_loss
 from ushape.metrics.calibration import calibration_curve, plot_calibration
 
 LossFn = Callable[..., Tensor]
@@ -180,19 +180,13 @@ class EncoderModule(L.LightningModule):
         return loss
 
     def _ensemble_loss(self, head: GaussianEnsemble, batch: dict) -> Tensor:
-        """Mean over members of each member's loss on the shapes of its bootstrap share."""
+        """`ensemble_loss` over the members' shares of the batch (cross-fitted if the head says so)."""
         features = self.encoder.head_input(
             batch["features"] if "features" in batch else self.encoder.features(batch["image"])
         )
         mus, logvars = self._head_outputs(lambda: head.member_outputs(features), features.device)
         member_of = head.member_of(list(batch["shape_id"])).to(features.device)
-        losses = [
-            self.loss_fn(mu[rows], logvar[rows], batch["code"][rows])
-            for mu, logvar, rows in zip(mus, logvars, member_of)
-            if rows.any()
-        ] or [mus.sum() * 0.0]
-        # A member with no shape of its share in this batch still joins the graph (DDP), with weight 0.
-        return torch.stack(losses).mean() + 0.0 * (mus.sum() + logvars.sum())
+        return ensemble_loss(self.loss_fn, mus, logvars, batch["code"], member_of, head.cross_fit)
 
     def _eval_step(self, batch: dict, prefix: str) -> None:
         mu, logvar = self.predict_batch(batch)
