@@ -2,6 +2,8 @@
 
 import json
 
+import pytest
+
 from ushape.training.demo_meshes import demo_digest
 from ushape.training.summary import print_summary
 
@@ -26,9 +28,44 @@ def test_the_demo_is_summarised_one_view_first_and_an_empty_surface_said(tmp_pat
     assert rows[0] == {"name": "t_1view", "empty": True} and rows[1]["trace"] == 0.52
 
 
-def test_the_summary_prints_brackets_and_the_next_commands(tmp_path, capsys):
+def test_the_summary_prints_brackets_the_demo_scores_and_the_next_commands(tmp_path, capsys):
     _demo(tmp_path / "meshes" / "s_1view", 1, 0.52, 0.024)
+    _demo(tmp_path / "meshes" / "s_12views", 12, 0.04, 0.0065)
+    scores = {"s": {"s_1view": {"iou": 0.41, "cd": 0.0612}, "own_code": {"iou": 0.62, "cd": 0.04}}}
+    (tmp_path / "meshes" / "scores.json").write_text(json.dumps(scores))
     print_summary({"encoder_checkpoint": "ckpt", "demo": demo_digest(tmp_path / "meshes")}, tmp_path)
     out = capsys.readouterr().out
-    assert "1 view(s), latent trace 0.520, mean vertex std 0.0240" in out
+    assert "1 view(s), latent trace 0.520, mean vertex std 0.0240, IoU 0.41 CD 0.061 (its own code: IoU 0.62)" in out
+    assert "12 view(s), latent trace 0.040, mean vertex std 0.0065 ->" in out  # not scored: no figures
     assert f"python eval.py runs=[{tmp_path}]" in out and "python reconstruct.py" in out
+
+
+def test_the_demo_is_scored_against_its_ground_truth_with_known_answers(tmp_path):
+    """An ellipsoid decoder: the code of the true ellipsoid scores IoU ~1, a wrong one (a sphere) less."""
+    import numpy as np
+    import torch
+    import trimesh
+    from analytic_decoder import EllipsoidDecoder
+
+    from ushape.data.layout import WorldIndex
+    from ushape.decoder.artifacts import CodeTable
+    from ushape.training.demo_meshes import OWN_CODE, score_demo
+
+    decoder = EllipsoidDecoder()  # a = 0.5 + 0.3 tanh(z0), b = 0.5
+    z_true = float(np.arctanh(0.2 / 0.3))  # a = 0.7
+    truth = trimesh.creation.icosphere(subdivisions=4).apply_scale([0.7, 0.5, 0.5])
+    world = WorldIndex(root=tmp_path / "world", category="chairs", splits={})
+    world.mesh_path("s").parent.mkdir(parents=True)
+    truth.export(world.mesh_path("s"))
+    folder = tmp_path / "meshes" / "s_1view"
+    folder.mkdir(parents=True)
+    sphere = trimesh.creation.icosphere(subdivisions=4).apply_scale(0.5)  # the code z = 0: a = b = 0.5
+    sphere.export(folder / "mesh.ply")
+    (folder / "summary.json").write_text(json.dumps({"fused": {"mu": [0.0, 0.0, 0.0]}}))
+    codes = CodeTable(["s"], torch.tensor([[z_true, 0.0, 0.0]]))
+    scores = score_demo(decoder, world, tmp_path / "meshes", ["s"], 48, codes)["s"]
+    assert scores[OWN_CODE]["iou"] > 0.9
+    # Each scaled by its longest side (Pix3D): the ellipsoid's short axes become 0.5 / 1.4 of the sphere's
+    # 0.5, so the sphere holds it whole and IoU = its volume share (0.5 / 1.4 / 0.5)^2 = 0.51.
+    assert scores["s_1view"]["iou"] == pytest.approx((0.5 / 1.4 / 0.5) ** 2, abs=0.06)
+    assert scores["s_1view"]["cd"] > 3 * scores[OWN_CODE]["cd"]  # 0.21 against 1024-point sampling noise 0.045

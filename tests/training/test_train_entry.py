@@ -43,10 +43,15 @@ def test_sweep_over_losses_trains_one_decoder_and_two_encoders(tmp_path):
         blob = torch.load(s["encoder_checkpoint"], map_location="cpu", weights_only=False)
         assert any(key.startswith("EarlyStopping") for key in blob["callbacks"]), list(blob["callbacks"])
         # One val shape from its first view and from both views; a 1-epoch encoder may give no surface.
-        assert sorted(row["name"] for row in s["demo"]) == sorted(p.name for p in Path(s["meshes"]).iterdir())
-        folders = sorted(p.name for p in Path(s["meshes"]).iterdir())
+        folders = sorted(p.name for p in Path(s["meshes"]).iterdir() if p.is_dir())
+        assert sorted(row["name"] for row in s["demo"]) == folders
         assert len(folders) == 2 and folders[0].endswith("_1view") and folders[1].endswith("_2views"), folders
-        for folder in Path(s["meshes"]).iterdir():
+        # Each mesh scored against the ground truth, beside the shape's own stage-1 code.
+        scores = json.loads((Path(s["meshes"]) / "scores.json").read_text())
+        (shape_scores,) = scores.values()
+        assert set(shape_scores) <= set(folders) | {"own_code"} and "own_code" in shape_scores
+        assert all(0.0 <= v["iou"] <= 1.0 for v in shape_scores.values())
+        for folder in (p for p in Path(s["meshes"]).iterdir() if p.is_dir()):
             assert (folder / "mesh.ply").exists() or (folder / "empty_surface.txt").exists()
             if (folder / "summary.json").exists():
                 assert json.loads((folder / "summary.json").read_text())["fusion"] == "bayesian-1"

@@ -248,7 +248,7 @@ def write_summary(
             for i, p in enumerate(paths)
         ],
         "skipped": [{"image": str(p), "reason": why} for p, why in skipped],
-        "fused": {"trace_var": float(fused.var.sum()), "kept": sorted(kept)},
+        "fused": {"trace_var": float(fused.var.sum()), "kept": sorted(kept), "mu": fused.mu.tolist()},
         "mesh": {
             "vertices": len(mesh.vertices),
             "faces": len(mesh.faces),

@@ -6,6 +6,11 @@ default), both coloured on the single view's scale so the two can be compared by
 
     <run>/meshes/<shape id>_1view/     mesh.ply, mesh.glb, overview.png, depth_00.png, summary.json
     <run>/meshes/<shape id>_<N>views/
+    <run>/meshes/scores.json           each mesh's IoU / Chamfer against the ground truth, and those of
+                                       the shape's own stage-1 code (what this decoder can do at best)
+
+The scores follow the Pix3D protocol of `eval.py` (32^3 voxels, 1024 surface points) on the demo's
+own meshes, so they can differ a little from `eval.py`'s, which meshes at its own resolution.
 """
 
 from __future__ import annotations
@@ -16,18 +21,26 @@ import logging
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+import torch
+import trimesh
 from torch import Tensor
 
 from ushape import atomic
 from ushape.data.layout import WorldIndex
+from ushape.decoder.artifacts import CodeTable
+from ushape.decoder.query import code_sdf_fn, frozen
 from ushape.encoder.datamodule import view_files
 from ushape.fusion import BayesianFusion, FusedCode
-from ushape.mesh.extraction import EmptySurfaceError
+from ushape.mesh.extraction import EmptySurfaceError, extract_mesh
+from ushape.metrics.pix3d import ShapeReference, pix3d_metrics, reference_from_mesh
 from ushape.reconstruction.pipeline import ReconstructionSettings, reconstruct
 from ushape.reconstruction.predictor import load_predictor
 
 log = logging.getLogger(__name__)
 EMPTY_NOTE = "empty_surface.txt"
+SCORES_FILE = "scores.json"
+OWN_CODE = "own_code"
 FusionRule = Callable[[Tensor, Tensor], FusedCode]  # (mu [V, D], var [V, D]) -> fused Gaussian
 
 
@@ -39,10 +52,12 @@ def write_demo_meshes(
     resolution: int = 96,
     split: str = "val",
     fusion: FusionRule | None = None,
+    codes: CodeTable | None = None,
 ) -> Path | None:
     """Reconstruct `shapes` held-out shapes from 1 and from all views into out_dir; None if shapes = 0.
 
     A code with no surface (an undertrained encoder) leaves an `empty_surface.txt` saying so, not a crash.
+    With the split's stage-1 `codes`, scores.json also holds each shape's own code's scores.
     """
     ids = world.shape_ids(split)[:shapes]
     if shapes <= 0 or not ids:
@@ -63,13 +78,57 @@ def write_demo_meshes(
                 continue
             # The single view's colour scale for the fused one too: less uncertainty looks darker.
             settings = dataclasses.replace(settings, std_max=float(summary["files"]["std_max"]))
+    atomic.write_json(out_dir / SCORES_FILE, score_demo(predictor.decoder, world, out_dir, ids, resolution, codes))
     return out_dir
+
+
+def score_demo(
+    decoder, world: WorldIndex, meshes_dir: Path, shape_ids: list[str], resolution: int, codes: CodeTable | None
+) -> dict[str, dict[str, dict[str, float]]]:
+    """{shape id: {demo folder or "own_code": {"iou", "cd"}}} against each shape's ground-truth mesh."""
+    scores = {}
+    for shape_id in shape_ids:
+        reference = reference_from_mesh(trimesh.load(world.mesh_path(shape_id), process=False))
+        shape_scores = {}
+        for folder in sorted(meshes_dir.glob(f"{shape_id}_*view*")):
+            record = folder / "summary.json"
+            if record.is_file():
+                summary = json.loads(record.read_text())
+                mesh = trimesh.load(folder / "mesh.ply", process=False)
+                code = torch.tensor(summary["fused"]["mu"])
+                shape_scores[folder.name] = _code_scores(decoder, code, reference, mesh)
+        if codes is not None and shape_id in codes.shape_ids:
+            try:
+                shape_scores[OWN_CODE] = _code_scores(decoder, codes.lookup(shape_id), reference, None, resolution)
+            except EmptySurfaceError:
+                shape_scores[OWN_CODE] = {"iou": 0.0, "cd": float("nan")}
+        scores[shape_id] = shape_scores
+    return scores
+
+
+def _code_scores(
+    decoder, code: Tensor, reference: ShapeReference, mesh: trimesh.Trimesh | None, resolution: int = 96
+) -> dict[str, float]:
+    """IoU and Chamfer of the code's surface (`mesh`, else extracted) against the reference."""
+    with frozen(decoder):
+        sdf = code_sdf_fn(decoder, code)
+        if mesh is None:
+            mesh, _ = extract_mesh(sdf, resolution)
+
+        def inside(points: np.ndarray) -> np.ndarray:
+            return (sdf(torch.as_tensor(points, dtype=torch.float32)) < 0).numpy()
+
+        return pix3d_metrics(mesh, inside, reference, emd=False)
 
 
 def demo_digest(meshes_dir: str | Path) -> list[dict]:
     """Per demo reconstruction: its folder name, views fused, latent covariance trace, mean vertex std,
-    overview picture; or the empty-surface note. What a run prints at its end."""
+    overview picture, IoU / Chamfer and those of the shape's own code where scored; or the empty-surface
+    note. What a run prints at its end."""
     rows = []
+    scores_path = Path(meshes_dir) / SCORES_FILE
+    scores = json.loads(scores_path.read_text()) if scores_path.is_file() else {}
+    by_folder = {name: (shape, s) for shape, per in scores.items() for name, s in per.items() if name != OWN_CODE}
     for folder in sorted(p for p in Path(meshes_dir).iterdir() if p.is_dir()):
         record = folder / "summary.json"
         if not record.is_file():
@@ -85,4 +144,7 @@ def demo_digest(meshes_dir: str | Path) -> list[dict]:
                 "overview": summary["files"]["overview"],
             }
         )
+        if folder.name in by_folder:
+            shape, found = by_folder[folder.name]
+            rows[-1].update(iou=found["iou"], cd=found["cd"], own_code=scores[shape].get(OWN_CODE))
     return sorted(rows, key=lambda row: (row.get("views", 0), row["name"]))  # one view first, then all

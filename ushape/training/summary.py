@@ -42,7 +42,7 @@ def print_summary(summary: Mapping[str, Any], out_dir: Path) -> None:
         else:
             lines.append(
                 f"Demo:         {row['name']}: {row['views']} view(s), latent trace {row['trace']:.3f}, "
-                f"mean vertex std {row['std_mean']:.4f} -> {row['overview']}"
+                f"mean vertex std {row['std_mean']:.4f}{_demo_scores(row)} -> {row['overview']}"
             )
     if "tensorboard" in summary:
         lines.append(f"Watch with:   tensorboard --logdir {summary['tensorboard']}")
@@ -51,6 +51,15 @@ def print_summary(summary: Mapping[str, Any], out_dir: Path) -> None:
             f"Next:         python eval.py runs=[{out_dir}]   |   python reconstruct.py your_photo.png --run {out_dir}"
         )
     Console(soft_wrap=True).print("\n".join(lines), highlight=False, markup=False)
+
+
+def _demo_scores(row: Mapping[str, Any]) -> str:
+    """ ", IoU 0.41 CD 0.061 (own code: IoU 0.62)" where the demo was scored, else ""."""
+    if "iou" not in row:
+        return ""
+    text = f", IoU {row['iou']:.2f} CD {row['cd']:.3f}"
+    own = row.get("own_code")
+    return text + (f" (its own code: IoU {own['iou']:.2f})" if own else "")
 
 
 # What Hydra and `print_config` write into every run folder before any work: no result in them.

@@ -17,6 +17,7 @@ from omegaconf import DictConfig, OmegaConf
 from ushape import atomic
 from ushape.builders import build_all
 from ushape.data.layout import WorldIndex
+from ushape.decoder.artifacts import codes_file, load_codes
 from ushape.decoder.basis import ensure_basis
 from ushape.decoder.fit import fit_decoder
 from ushape.decoder.recode import ensure_codes
@@ -96,12 +97,15 @@ def _train(cfg: DictConfig, out_dir: Path, main: bool) -> float | None:
         if not main:
             return None
         summary["encoder_checkpoint"] = str(checkpoint)
+        demo = _plain(cfg.stage2.get("demo_meshes") or {})
+        codes_path = latent_dir / codes_file(demo.get("split", "val"))
         meshes = write_demo_meshes(
             checkpoint,
             world,
             out_dir / "meshes",
-            **_plain(cfg.stage2.get("demo_meshes") or {}),
+            **demo,
             fusion=instantiate(cfg.fusion) if cfg.get("fusion") else None,
+            codes=load_codes(codes_path) if codes_path.is_file() else None,
         )
         if meshes is not None:
             summary["meshes"] = str(meshes)
