@@ -69,3 +69,5 @@ def test_the_demo_is_scored_against_its_ground_truth_with_known_answers(tmp_path
     # 0.5, so the sphere holds it whole and IoU = its volume share (0.5 / 1.4 / 0.5)^2 = 0.51.
     assert scores["s_1view"]["iou"] == pytest.approx((0.5 / 1.4 / 0.5) ** 2, abs=0.06)
     assert scores["s_1view"]["cd"] > 3 * scores[OWN_CODE]["cd"]  # 0.21 against 1024-point sampling noise 0.045
+    # A world without ground-truth meshes (or a shape missing one) leaves that shape unscored, not a crash.
+    assert score_demo(decoder, world, tmp_path / "meshes", ["other"], 48, codes) == {}

@@ -88,6 +88,9 @@ def score_demo(
     """{shape id: {demo folder or "own_code": {"iou", "cd"}}} against each shape's ground-truth mesh."""
     scores = {}
     for shape_id in shape_ids:
+        if not world.mesh_path(shape_id).is_file():
+            log.warning("no ground-truth mesh %s: the demo of %s is not scored", world.mesh_path(shape_id), shape_id)
+            continue
         reference = reference_from_mesh(trimesh.load(world.mesh_path(shape_id), process=False))
         shape_scores = {}
         for folder in sorted(meshes_dir.glob(f"{shape_id}_*view*")):

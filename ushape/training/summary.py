@@ -54,7 +54,7 @@ def print_summary(summary: Mapping[str, Any], out_dir: Path) -> None:
 
 
 def _demo_scores(row: Mapping[str, Any]) -> str:
-    """ ", IoU 0.41 CD 0.061 (own code: IoU 0.62)" where the demo was scored, else ""."""
+    """The demo's scores as printed (", IoU 0.41 CD 0.061 (its own code: IoU 0.62)"); "" if not scored."""
     if "iou" not in row:
         return ""
     text = f", IoU {row['iou']:.2f} CD {row['cd']:.3f}"
