@@ -9,6 +9,7 @@ so an epoch sees a different subset of each shape's ~100k samples.
 from __future__ import annotations
 
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,7 @@ import torch
 from torch import Tensor
 from torch.utils.data import Dataset
 
-from ushape.data.layout import MESHES_DIR, SDF_DIR, read_split
+from ushape.data.layout import MESHES_DIR, SDF_DIR, WorldIndex, read_split
 
 REBUILD_HINT = "rebuild the data with ushape.data.world.SyntheticWorld(...).build()"
 
@@ -37,6 +38,20 @@ def load_sdf_samples(path: str | Path) -> tuple[Tensor, Tensor]:
                 f"SDF sample file {path}: {name!r} must be a non-empty [N, 4] array, got {arr.shape}; {REBUILD_HINT}"
             )
     return torch.from_numpy(pos), torch.from_numpy(neg)
+
+
+def sdf_points(world: WorldIndex, shape_id: str, n_points: int, seed: int = 0) -> tuple[Tensor, Tensor]:
+    """A repeatable random subset of a shape's ground-truth SDF samples: points [P, 3], sdf [P]."""
+    path = world.sdf_path(shape_id)
+    if not path.is_file():
+        raise FileNotFoundError(f"no ground-truth SDF samples {path}: the world folder is incomplete")
+    blob = np.load(path)
+    samples = np.concatenate([blob["pos"], blob["neg"]]).astype(np.float32)
+    rng = np.random.default_rng(seed + zlib.crc32(shape_id.encode()))
+    if len(samples) > n_points:
+        samples = samples[rng.choice(len(samples), n_points, replace=False)]
+    samples = torch.from_numpy(samples)
+    return samples[:, :3].contiguous(), samples[:, 3].contiguous()
 
 
 def draw_half_pos_half_neg(pos: Tensor, neg: Tensor, count: int, generator: torch.Generator | None = None) -> Tensor:

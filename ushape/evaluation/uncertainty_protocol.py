@@ -8,15 +8,14 @@ second method) and scored there per SDF value, split into All / Surface / Non-Su
 
 from __future__ import annotations
 
-import zlib
 from pathlib import Path
 
-import numpy as np
 import torch
 from torch import Tensor
 from tqdm.auto import tqdm
 
 from ushape.data.layout import WorldIndex
+from ushape.data.sdf_dataset import sdf_points
 from ushape.decoder.artifacts import CodeTable
 from ushape.encoder.latent_metrics import latent_l2, variance_tracks_error
 from ushape.evaluation.protocols import EncoderSpec, summarise
@@ -25,20 +24,6 @@ from ushape.evaluation.views import Encodings
 from ushape.metrics.calibration import calibration_curve, calibration_error
 
 PROPAGATION_METHODS = ("mc", "linearised")
-
-
-def sdf_points(world: WorldIndex, shape_id: str, n_points: int, seed: int = 0) -> tuple[Tensor, Tensor]:
-    """A repeatable random subset of a shape's ground-truth SDF samples: points [P, 3], sdf [P]."""
-    path = world.sdf_path(shape_id)
-    if not path.is_file():
-        raise FileNotFoundError(f"no ground-truth SDF samples {path}: the world folder is incomplete")
-    blob = np.load(path)
-    samples = np.concatenate([blob["pos"], blob["neg"]]).astype(np.float32)
-    rng = np.random.default_rng(seed + zlib.crc32(shape_id.encode()))
-    if len(samples) > n_points:
-        samples = samples[rng.choice(len(samples), n_points, replace=False)]
-    samples = torch.from_numpy(samples)
-    return samples[:, :3].contiguous(), samples[:, 3].contiguous()
 
 
 def _variants(spec: EncoderSpec, var: Tensor) -> dict[str, Tensor]:
