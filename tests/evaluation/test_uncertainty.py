@@ -8,11 +8,11 @@ import torch
 from ushape.evaluation.uncertainty import (
     latent_nll,
     latent_report,
-    propagate_to_sdf,
     region_masks,
     sdf_region_scores,
 )
 from ushape.metrics.scores import energy_score_1d
+from ushape.propagation import propagate_to_sdf
 
 
 class LinearDecoder(torch.nn.Module):

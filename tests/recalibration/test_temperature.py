@@ -65,3 +65,19 @@ def test_bad_validation_data():
         fit_temperature(mu, var, target * float("nan"))
     with pytest.raises(ValueError, match="no spread"):
         fit_temperature(mu, var, mu.clone())
+
+
+def test_calibration_temperature_recovers_a_known_overconfidence():
+    from ushape.recalibration.temperature import fit_calibration_temperature
+
+    torch.manual_seed(0)
+    std = torch.rand(200_000) * 0.05 + 0.01
+    error = (torch.randn(200_000) * std * 1.3).abs()  # predicted std 1.3x too small: T = 1.69
+    t, before, after = fit_calibration_temperature(error, std)
+    assert t == pytest.approx(1.69, rel=0.1)
+    assert after < 0.01 < before
+    # Already calibrated: T stays 1 (ties go to the factor nearest 1).
+    t, _, after = fit_calibration_temperature((torch.randn(200_000) * std).abs(), std)
+    assert t == pytest.approx(1.0, rel=0.1) and after < 0.01
+    with pytest.raises(ValueError, match="std > 0"):
+        fit_calibration_temperature(error, torch.zeros_like(std))

@@ -21,7 +21,6 @@ from torch import Tensor
 from ushape.encoder.latent_metrics import latent_scores
 from ushape.encoder.losses import gaussian_nll
 from ushape.metrics.scores import energy_score_1d, gaussian_nll_1d
-from ushape.propagation import propagate, propagate_mc
 
 SURFACE_BAND = 0.01
 EQUAL_VARIANCE = 1.0
@@ -74,31 +73,3 @@ def sdf_region_scores(
         out[f"nll_{region}"] = float(nll[mask].mean()) if count else math.nan
         out[f"n_{region}"] = count
     return out
-
-
-def propagate_to_sdf(
-    decoder,
-    mu: Tensor,
-    var: Tensor,
-    points: Tensor,
-    method: str = "mc",
-    n_samples: int = 10,
-    seed: int = 0,
-    clamp: float | None = 0.1,
-    bf16: bool = False,
-) -> tuple[Tensor, Tensor]:
-    """SDF mean and variance [P] at points [P, 3] for one latent Gaussian (mu, var [D]), clamped values.
-
-    Monte Carlo clamps every sample before its statistics; the linearised method clamps the mean
-    and zeroes the variance where the mean is beyond the clamp (the clamp's derivative there is 0).
-    """
-    generator = torch.Generator().manual_seed(seed)
-    if method == "mc" and clamp is not None:
-        _, _, samples = propagate_mc(decoder, mu, var, points, n_samples, generator, bf16=bf16, return_samples=True)
-        samples = samples.clamp(-clamp, clamp)
-        return samples.mean(dim=0), samples.var(dim=0, correction=1)
-    mean, variance = propagate(decoder, mu, var, points, method, n_samples, generator, bf16=bf16)
-    if clamp is not None:
-        variance = torch.where(mean.abs() < clamp, variance, torch.zeros_like(variance))
-        mean = mean.clamp(-clamp, clamp)
-    return mean, variance

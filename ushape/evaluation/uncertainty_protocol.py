@@ -19,9 +19,10 @@ from ushape.data.sdf_dataset import sdf_points
 from ushape.decoder.artifacts import CodeTable
 from ushape.encoder.latent_metrics import latent_l2, variance_tracks_error
 from ushape.evaluation.protocols import EncoderSpec, summarise
-from ushape.evaluation.uncertainty import EQUAL_VARIANCE, latent_report, propagate_to_sdf, sdf_region_scores
+from ushape.evaluation.uncertainty import EQUAL_VARIANCE, latent_report, sdf_region_scores
 from ushape.evaluation.views import Encodings
 from ushape.metrics.calibration import calibration_curve, calibration_error
+from ushape.propagation import propagate_to_sdf
 
 PROPAGATION_METHODS = ("mc", "linearised")
 

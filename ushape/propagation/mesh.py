@@ -56,3 +56,31 @@ def vertex_uncertainty(
     """Standard deviation of the SDF at each mesh vertex (the paper's per-vertex mesh colouring)."""
     _, variance = propagate(decoder, mu, var, vertices, method, n_samples, generator, chunk, bf16)
     return variance.sqrt()
+
+
+def propagate_to_sdf(
+    decoder,
+    mu: Tensor,
+    var: Tensor,
+    points: Tensor,
+    method: str = "mc",
+    n_samples: int = 10,
+    seed: int = 0,
+    clamp: float | None = 0.1,
+    bf16: bool = False,
+) -> tuple[Tensor, Tensor]:
+    """SDF mean and variance [P] at points [P, 3] for one latent Gaussian (mu, var [D]), clamped values.
+
+    Monte Carlo clamps every sample before its statistics; the linearised method clamps the mean
+    and zeroes the variance where the mean is beyond the clamp (the clamp's derivative there is 0).
+    """
+    generator = torch.Generator().manual_seed(seed)
+    if method == "mc" and clamp is not None:
+        _, _, samples = propagate_mc(decoder, mu, var, points, n_samples, generator, bf16=bf16, return_samples=True)
+        samples = samples.clamp(-clamp, clamp)
+        return samples.mean(dim=0), samples.var(dim=0, correction=1)
+    mean, variance = propagate(decoder, mu, var, points, method, n_samples, generator, bf16=bf16)
+    if clamp is not None:
+        variance = torch.where(mean.abs() < clamp, variance, torch.zeros_like(variance))
+        mean = mean.clamp(-clamp, clamp)
+    return mean, variance

@@ -13,6 +13,7 @@ import math
 import torch
 from torch import Tensor
 
+from ushape.metrics.calibration import calibration_curve, calibration_error
 from ushape.metrics.scores import gaussian_nll_1d
 
 
@@ -65,3 +66,31 @@ def gaussian_nll_with_temperature(
     _check(mu, var, target)
     scaled = apply_temperature(var.double(), temperature)
     return float(gaussian_nll_1d(mu.double(), scaled, target.double()).mean())
+
+
+# Variance factors tried by `fit_calibration_temperature`: 1/16 to 16, 2^(1/8) apart (std 1/4 to 4).
+CALIBRATION_GRID = tuple(2.0 ** (k / 8) for k in range(-32, 33))
+
+
+def fit_calibration_temperature(
+    abs_error: Tensor,  # [P]
+    std: Tensor,  # [P]
+    n_levels: int = 20,
+    grid: tuple[float, ...] = CALIBRATION_GRID,
+) -> tuple[float, float, float]:
+    """The variance factor T (std' = sqrt(T) std) minimising the calibration error of |error| against std.
+
+    For a space where T is not fitted by the NLL: the SDF std propagated from a latent Gaussian that
+    was calibrated in latent space is measured still too small (1.1-1.3x, docs/stage2_encoder.md), and
+    its NLL, on values clamped at the decoder's training clamp, is not what is reported; the
+    calibration error is. -> (T, calibration error at T = 1, at T), over the grid of factors.
+    """
+    abs_error, std = abs_error.reshape(-1).double(), std.reshape(-1).double()
+    if abs_error.shape != std.shape or abs_error.numel() == 0:
+        raise ValueError(f"abs_error {tuple(abs_error.shape)} and std {tuple(std.shape)} must be equal and non-empty")
+    if not (torch.isfinite(abs_error).all() and torch.isfinite(std).all()) or (std <= 0).any():
+        raise ValueError("abs_error and std must be finite, with std > 0 (floor it before fitting)")
+    scores = [(calibration_error(*calibration_curve(abs_error, std * math.sqrt(t), n_levels)), t) for t in grid]
+    best_error, best = min(scores, key=lambda pair: (pair[0], abs(math.log(pair[1]))))
+    before = calibration_error(*calibration_curve(abs_error, std, n_levels))
+    return best, before, best_error
