@@ -117,3 +117,31 @@ def test_error_tracking_ranks_variance_against_error():
     assert reversed_["rank_corr"] == pytest.approx(-1.0)
     frodo = error_tracking_row(EncoderSpec("l2", "FroDO*", False), _encodings([0.1, 0.5], [4.0, 4.0]), codes, 1.0)
     assert math.isnan(frodo["rank_corr"])
+
+
+def test_sdf_rows_scale_the_predicted_sdf_variance_by_the_sdf_temperature_only(tmp_path):
+    import numpy as np
+    from analytic_decoder import EllipsoidDecoder
+    from fake_world import write_sdf
+
+    from ushape.data.layout import WorldIndex
+    from ushape.evaluation.protocols import EncoderSpec
+    from ushape.evaluation.uncertainty_protocol import sdf_rows
+    from ushape.evaluation.views import Encodings, ViewKey
+
+    world = WorldIndex(tmp_path, category="", splits={})
+    points = np.random.default_rng(0).uniform(-0.8, 0.8, (300, 3))
+    write_sdf(world, "s", np.concatenate([points, np.linalg.norm(points, axis=1, keepdims=True) - 0.55], 1))
+    encodings = Encodings([ViewKey("s", 0)], torch.zeros(1, 3), torch.full((1, 3), 0.04))
+    spec = EncoderSpec("es", "Ours", probabilistic=True)
+
+    def rows(sdf_temperature):
+        found, _ = sdf_rows(
+            spec, encodings, EllipsoidDecoder(), world, 300, methods=("linearised",), sdf_temperature=sdf_temperature
+        )
+        return {row["variance"]: row for row in found}
+
+    plain, scaled = rows(None), rows(4.0)
+    assert scaled["equal"] == plain["equal"]  # the equal-variance baseline is no prediction: left alone
+    assert scaled["predicted"]["calibration_error"] != plain["predicted"]["calibration_error"]
+    assert scaled["predicted"] == rows(4.0)["predicted"] and rows(1.0)["predicted"] == plain["predicted"]

@@ -79,5 +79,5 @@ def test_calibration_temperature_recovers_a_known_overconfidence():
     # Already calibrated: T stays 1 (ties go to the factor nearest 1).
     t, _, after = fit_calibration_temperature((torch.randn(200_000) * std).abs(), std)
     assert t == pytest.approx(1.0, rel=0.1) and after < 0.01
-    with pytest.raises(ValueError, match="std > 0"):
-        fit_calibration_temperature(error, torch.zeros_like(std))
+    with pytest.raises(ValueError, match="std >= 0"):
+        fit_calibration_temperature(error, -std)

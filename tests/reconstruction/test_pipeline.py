@@ -5,8 +5,10 @@ import json
 import numpy as np
 import pytest
 import torch
+from fake_world import write_sdf
 
 from ushape.data.cameras import camera_centre
+from ushape.data.layout import WorldIndex
 from ushape.fusion import BayesianKFusion
 from ushape.reconstruction.cli import build_fusion, main
 from ushape.reconstruction.export import read_glb_std, read_ply_std
@@ -97,10 +99,21 @@ def test_cli_reports_skipped_images_and_bad_fusion(tiny_run, tmp_path, capsys, m
     assert main([str(tmp_path / "nothing.png"), "--run", str(tiny_run["run"]), "--out", str(tmp_path / "o")]) == 2
     assert "none of the 1 input" in capsys.readouterr().err and not (tmp_path / "o").exists()
     monkeypatch.setattr("ushape.reconstruction.predictor.latest_run", lambda root: tiny_run["run"])
+    world = WorldIndex(tiny_run["world"], category="", splits={})
+    points = np.random.default_rng(0).uniform(-1, 1, (400, 3))
+    for shape_id in ("val_0", "val_1", "val_2"):  # ground-truth SDF samples (a sphere) for the SDF factor
+        write_sdf(world, shape_id, np.concatenate([points, np.linalg.norm(points, axis=1, keepdims=True) - 0.5], 1))
     assert main(["--fit-temperature"]) == 0
     record = json.loads((tiny_run["checkpoint"].parent / "temperature.json").read_text())
     assert record["n_images"] == 9 and record["temperature"] > 0 and record["nll_after"] <= record["nll_before"]
+    # The SDF-space factor, fitted on the val shapes' SDF samples; never worse than none (T = 1 is on the grid).
+    assert record["sdf_temperature"] > 0 and record["sdf_calibration_after"] <= record["sdf_calibration_before"]
+    assert record["sdf_views"] == 9  # 3 val shapes x 3 renders, all within the first 4 views
+    predictor = load_predictor(tiny_run["run"], temperature=True)
+    assert predictor.sdf_temperature == record["sdf_temperature"]
     (tiny_run["checkpoint"].parent / "temperature.json").unlink()
+    for shape_id in ("val_0", "val_1", "val_2"):
+        world.sdf_path(shape_id).unlink()
 
 
 def test_depth_method_mc_and_implicit_both_run_and_the_summary_says_which(

@@ -130,14 +130,16 @@ def load_encoder(
 ) -> EncoderRun:
     """A run folder -> its predictor, world (run.json's, or world_dir), decoder and the test views to evaluate.
 
-    temperature=True scales the predicted variances by the temperature stored beside the checkpoint.
+    temperature=True scales the predicted variances by the temperatures stored beside the checkpoint
+    (latent, and SDF where one was fitted).
     The world is checked (and a synthetic one repaired) by `open_world`, once per folder in `opened`.
     """
-    from ushape.reconstruction.predictor import load_predictor, read_temperature
+    from ushape.reconstruction.predictor import load_predictor, read_sdf_temperature, read_temperature
 
     predictor = load_predictor(run_dir)
     if temperature and predictor.model.predicts_variance:  # FroDO* has no variance to scale
         predictor.temperature = read_temperature(predictor.checkpoint)
+        predictor.sdf_temperature = read_sdf_temperature(predictor.checkpoint)
     world_dir = world_dir or predictor.world
     if world_dir is None:
         raise FileNotFoundError(
@@ -264,6 +266,7 @@ def evaluate_encoder(
             settings.sdf_clamp,
             settings.sdf_views,
             settings.calibration_levels,
+            sdf_temperature=run.predictor.sdf_temperature,
         )
         out["uncertainty"] = rows + sdf
         scales = [1.0] + (list(settings.single_view_scales) if "corrupted" in protocols else [])

@@ -23,6 +23,7 @@ from ushape.evaluation.uncertainty import EQUAL_VARIANCE, latent_report, sdf_reg
 from ushape.evaluation.views import Encodings
 from ushape.metrics.calibration import calibration_curve, calibration_error
 from ushape.propagation import propagate_to_sdf
+from ushape.recalibration import apply_temperature
 
 PROPAGATION_METHODS = ("mc", "linearised")
 
@@ -107,8 +108,12 @@ def sdf_rows(
     views_per_shape: int | None = None,
     n_levels: int = 20,
     methods: tuple[str, ...] = PROPAGATION_METHODS,
+    sdf_temperature: float | None = None,
 ) -> tuple[list, dict]:
-    """SDF-space ES / NLL per region and calibration error, per (variance variant, propagation method)."""
+    """SDF-space ES / NLL per region and calibration error, per (variance variant, propagation method).
+
+    `sdf_temperature` (`fit_and_store_temperature`'s, fitted on val) scales the predicted SDF variance.
+    """
     encodings = encodings.first_views(views_per_shape)
     pools: dict[tuple[str, str], list[tuple[Tensor, Tensor, Tensor]]] = {}
     for i, key in enumerate(tqdm(encodings.keys, desc=f"{spec.name} SDF uncertainty", leave=False)):
@@ -121,6 +126,8 @@ def sdf_rows(
                 mean, variance = propagate_to_sdf(
                     decoder, encodings.mu[i], var[0], points, method, n_samples, seed=i, clamp=clamp
                 )
+                if variant == "predicted" and sdf_temperature is not None:
+                    variance = apply_temperature(variance, sdf_temperature)
                 pools.setdefault((variant, method), []).append((mean, variance, sdf_true))
     rows, curves = [], {}
     for (variant, method), parts in pools.items():

@@ -88,8 +88,8 @@ def fit_calibration_temperature(
     abs_error, std = abs_error.reshape(-1).double(), std.reshape(-1).double()
     if abs_error.shape != std.shape or abs_error.numel() == 0:
         raise ValueError(f"abs_error {tuple(abs_error.shape)} and std {tuple(std.shape)} must be equal and non-empty")
-    if not (torch.isfinite(abs_error).all() and torch.isfinite(std).all()) or (std <= 0).any():
-        raise ValueError("abs_error and std must be finite, with std > 0 (floor it before fitting)")
+    if not (torch.isfinite(abs_error).all() and torch.isfinite(std).all()) or (std < 0).any():
+        raise ValueError("abs_error and std must be finite, with std >= 0 (a standard deviation, not a log)")
     scores = [(calibration_error(*calibration_curve(abs_error, std * math.sqrt(t), n_levels)), t) for t in grid]
     best_error, best = min(scores, key=lambda pair: (pair[0], abs(math.log(pair[1]))))
     before = calibration_error(*calibration_curve(abs_error, std, n_levels))

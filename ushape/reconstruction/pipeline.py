@@ -29,6 +29,7 @@ from ushape.fusion.rules import FusedCode
 from ushape.mesh.extraction import extract_mesh
 from ushape.propagation.mesh import METHODS, vertex_uncertainty
 from ushape.propagation.monte_carlo import sample_codes
+from ushape.recalibration import apply_temperature
 from ushape.reconstruction.depth_implicit import DEPTH_METHODS, depth_stats
 from ushape.reconstruction.export import DEFAULT_CMAP, coloured_mesh, write_mesh_files
 from ushape.reconstruction.figures import depth_figure, overview_figure
@@ -118,7 +119,10 @@ def reconstruct(
         vertices = torch.as_tensor(np.asarray(mesh.vertices), dtype=torch.float32)
         std = vertex_uncertainty(
             decoder, fused.mu, fused.var, vertices, settings.uncertainty, settings.n_samples, generator
-        ).numpy()
+        )
+        if predictor.sdf_temperature is not None:  # the SDF-space recalibration (`fit_and_store_temperature`)
+            std = apply_temperature(std.square(), predictor.sdf_temperature).sqrt()
+        std = std.numpy()
     with timer("write_mesh"):
         files = write_mesh_files(mesh, std, out_dir, "mesh", settings.std_max, settings.cmap)
     with timer("overview_figure"):
@@ -233,6 +237,7 @@ def write_summary(
     summary = {
         "checkpoint": str(predictor.checkpoint),
         "temperature": predictor.temperature,
+        "sdf_temperature": predictor.sdf_temperature,
         "fusion": getattr(fusion, "name", type(fusion).__name__),
         "uncertainty": settings.uncertainty,
         "depth_method": settings.depth_method,

@@ -117,6 +117,12 @@ def read_temperature(checkpoint: str | Path) -> float:
     return float(json.loads(path.read_text())["temperature"])
 
 
+def read_sdf_temperature(checkpoint: str | Path) -> float | None:
+    """The SDF-space temperature stored beside a checkpoint; None where only a latent one was fitted."""
+    value = json.loads(temperature_path(checkpoint).read_text()).get("sdf_temperature")
+    return None if value is None else float(value)
+
+
 def run_config(run_dir: Path | None) -> dict:
     """The run's composed Hydra config as a plain dict ({} without a run folder)."""
     if run_dir is None or not (run_dir / HYDRA_CONFIG).is_file():
@@ -145,6 +151,7 @@ class Predictor:
     checkpoint: Path
     run_dir: Path | None = None
     temperature: float | None = None
+    sdf_temperature: float | None = None  # scales the SDF variance propagated from the (T-scaled) latent one
     mask_mode: str = "gt_mask"
     background_value: float = 1.0
     world: Path | None = field(default=None)
@@ -256,7 +263,8 @@ def load_predictor(
 ) -> Predictor:
     """A Predictor from a run folder or checkpoint (None: the newest encoder run under <root>/outputs/runs).
 
-    temperature=True applies the T stored beside the checkpoint (var' = T var).
+    temperature=True applies the T stored beside the checkpoint (var' = T var), and its SDF-space
+    temperature where one was fitted (to the SDF and vertex variance propagated from var').
     """
     from ushape.encoder.module import EncoderModule  # lightning is imported only when a model is loaded
 
@@ -277,6 +285,7 @@ def load_predictor(
         checkpoint=Path(checkpoint),
         run_dir=run_dir,
         temperature=read_temperature(checkpoint) if temperature else None,
+        sdf_temperature=read_sdf_temperature(checkpoint) if temperature else None,
         mask_mode=mask_mode,
         world=world,
     )
