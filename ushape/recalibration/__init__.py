@@ -1,4 +1,4 @@
-"""Post-hoc recalibration of the encoder's predicted latent variance (temperature scaling)."""
+"""Post-hoc recalibration of the predicted variance (temperature scaling): latent, and propagated SDF."""
 
 from ushape.recalibration.temperature import (
     apply_temperature,

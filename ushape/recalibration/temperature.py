@@ -4,6 +4,8 @@ T scales the variance, so the standard deviation scales by sqrt(T). With this ch
 Gaussian NLL is minimised in closed form, T = mean((z - mu)^2 / var) over every sample and
 dimension: the mean squared standardised error, which is 1 for a calibrated model.
 T > 1 widens over-confident predictions, T < 1 sharpens under-confident ones.
+`fit_calibration_temperature` fits the same kind of factor where the NLL is not the score (the
+propagated SDF variance), by the calibration error over a grid.
 """
 
 from __future__ import annotations
@@ -81,7 +83,7 @@ def fit_calibration_temperature(
     """The variance factor T (std' = sqrt(T) std) minimising the calibration error of |error| against std.
 
     For a space where T is not fitted by the NLL: the SDF std propagated from a latent Gaussian that
-    was calibrated in latent space is measured still too small (1.1-1.3x, docs/stage2_encoder.md), and
+    was calibrated in latent space is measured still too small (1.04-1.24x, docs/stage2_encoder.md), and
     its NLL, on values clamped at the decoder's training clamp, is not what is reported; the
     calibration error is. -> (T, calibration error at T = 1, at T), over the grid of factors.
     """

@@ -3,7 +3,7 @@
 Latent: T (var' = T var) minimising the NLL of the val codes, the stage-1 codes `codes_val.pt` of the
 run's decoder (latent-optimised with the decoder frozen); the images are the world's renders, prepared
 as evaluation prepares them. SDF: the variance propagated (linearised) from the T-scaled latent
-Gaussians to each val shape's ground-truth SDF samples is still too small (measured 1.1-1.3x in std,
+Gaussians to each val shape's ground-truth SDF samples is still too small (measured 1.04-1.24x in std,
 docs/stage2_encoder.md), so a second factor, T_sdf on that variance, is fitted to its calibration error
 there, on the first views of each shape as `eval.py` scores them.
 `temperature.json` = {"temperature", "n_images", "nll_before", "nll_after", "sdf_temperature",
