@@ -51,7 +51,7 @@ class FakePredictor:
     """Encodes an image to (mu, var) from how much of it the object covers."""
 
     def __init__(self, checkpoint, probabilistic=True):
-        self.checkpoint, self.temperature, self.image_size = checkpoint, None, IMAGE
+        self.checkpoint, self.temperature, self.sdf_temperature, self.image_size = checkpoint, None, None, IMAGE
         self.mask_mode, self.background_value, self.probabilistic = "gt_mask", 1.0, probabilistic
         self.decoder = ellipsoid_decoder()
 
