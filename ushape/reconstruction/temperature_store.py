@@ -77,7 +77,8 @@ def sdf_errors(
 
 
 def fit_and_store_temperature(predictor: Predictor, world: str | Path | None = None) -> dict[str, Any]:
-    """Fit T on the run's val split, write temperature.json beside the checkpoint, return its content."""
+    """Fit T (and T_sdf where the world has SDF samples) on the val split, write temperature.json beside the
+    checkpoint, return its content."""
     world = world or predictor.world
     if world is None:
         raise ValueError("which world's val split? pass a run folder (its run.json names the world) or `world=`")
