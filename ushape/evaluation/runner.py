@@ -134,12 +134,11 @@ def load_encoder(
     (latent, and SDF where one was fitted).
     The world is checked (and a synthetic one repaired) by `open_world`, once per folder in `opened`.
     """
-    from ushape.reconstruction.predictor import load_predictor, read_sdf_temperature, read_temperature
+    from ushape.reconstruction.predictor import load_predictor, read_temperatures
 
     predictor = load_predictor(run_dir)
     if temperature and predictor.model.predicts_variance:  # FroDO* has no variance to scale
-        predictor.temperature = read_temperature(predictor.checkpoint)
-        predictor.sdf_temperature = read_sdf_temperature(predictor.checkpoint)
+        predictor.temperature, predictor.sdf_temperature = read_temperatures(predictor.checkpoint)
     world_dir = world_dir or predictor.world
     if world_dir is None:
         raise FileNotFoundError(

@@ -106,21 +106,23 @@ def temperature_path(checkpoint: str | Path) -> Path:
     return Path(checkpoint).parent / TEMPERATURE_FILE
 
 
-def read_temperature(checkpoint: str | Path) -> float:
-    """The temperature stored beside a checkpoint by `fit_and_store_temperature`."""
+def read_temperatures(checkpoint: str | Path) -> tuple[float, float | None]:
+    """(latent T, SDF-space T or None where only a latent one was fitted), as `fit_and_store_temperature`
+    stored them beside a checkpoint, read in one go."""
     path = temperature_path(checkpoint)
     if not path.is_file():
         raise FileNotFoundError(
             f"no {TEMPERATURE_FILE} beside {checkpoint}: fit it first with `python reconstruct.py --fit-temperature "
             f"--checkpoint {checkpoint}`"
         )
-    return float(json.loads(path.read_text())["temperature"])
+    record = json.loads(path.read_text())
+    sdf = record.get("sdf_temperature")
+    return float(record["temperature"]), None if sdf is None else float(sdf)
 
 
-def read_sdf_temperature(checkpoint: str | Path) -> float | None:
-    """The SDF-space temperature stored beside a checkpoint; None where only a latent one was fitted."""
-    value = json.loads(temperature_path(checkpoint).read_text()).get("sdf_temperature")
-    return None if value is None else float(value)
+def read_temperature(checkpoint: str | Path) -> float:
+    """The latent temperature stored beside a checkpoint by `fit_and_store_temperature`."""
+    return read_temperatures(checkpoint)[0]
 
 
 def run_config(run_dir: Path | None) -> dict:
@@ -279,13 +281,14 @@ def load_predictor(
     model.eval()
     summary = read_summary(run_dir) if run_dir else {}
     world = relocated(summary["world"], run_dir) if summary.get("world") else None
+    latent_t, sdf_t = read_temperatures(checkpoint) if temperature else (None, None)
     return Predictor(
         model=model,
         image_size=image_size,
         checkpoint=Path(checkpoint),
         run_dir=run_dir,
-        temperature=read_temperature(checkpoint) if temperature else None,
-        sdf_temperature=read_sdf_temperature(checkpoint) if temperature else None,
+        temperature=latent_t,
+        sdf_temperature=sdf_t,
         mask_mode=mask_mode,
         world=world,
     )
