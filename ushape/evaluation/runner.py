@@ -42,6 +42,7 @@ from ushape.evaluation.uncertainty_protocol import (
     with_shape_accuracy,
 )
 from ushape.evaluation.views import MASK_INPUTS, encode_views, test_views
+from ushape.propagation import SDF_CLAMP
 from ushape.reconstruction.depth_implicit import DEPTH_METHODS
 
 log = logging.getLogger(__name__)
@@ -72,7 +73,7 @@ class Settings:
     sdf_points: int = 1024
     mc_samples: int = 10
     sdf_views: int | None = None
-    sdf_clamp: float | None = 0.1
+    sdf_clamp: float | None = SDF_CLAMP
     calibration_levels: int = 20
     locality_points: int = 2048
     locality_scale: float = 0.1

@@ -22,7 +22,7 @@ from ushape.evaluation.protocols import EncoderSpec, summarise
 from ushape.evaluation.uncertainty import EQUAL_VARIANCE, latent_report, sdf_region_scores
 from ushape.evaluation.views import Encodings
 from ushape.metrics.calibration import calibration_curve, calibration_error
-from ushape.propagation import propagate_to_sdf
+from ushape.propagation import SDF_CLAMP, propagate_to_sdf
 from ushape.recalibration import apply_temperature
 
 PROPAGATION_METHODS = ("mc", "linearised")
@@ -104,7 +104,7 @@ def sdf_rows(
     world: WorldIndex,
     n_points: int = 1024,
     n_samples: int = 10,
-    clamp: float | None = 0.1,
+    clamp: float | None = SDF_CLAMP,
     views_per_shape: int | None = None,
     n_levels: int = 20,
     methods: tuple[str, ...] = PROPAGATION_METHODS,

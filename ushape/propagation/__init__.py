@@ -3,11 +3,12 @@
 from ushape.decoder.query import decode_points, frozen
 from ushape.propagation.field import BandField, decode_field, field_uncertainty, narrow_band_field
 from ushape.propagation.linearised import propagate_linearised
-from ushape.propagation.mesh import METHODS, grid_points, propagate, propagate_to_sdf, vertex_uncertainty
+from ushape.propagation.mesh import METHODS, SDF_CLAMP, grid_points, propagate, propagate_to_sdf, vertex_uncertainty
 from ushape.propagation.monte_carlo import propagate_mc
 
 __all__ = [
     "METHODS",
+    "SDF_CLAMP",
     "BandField",
     "decode_field",
     "decode_points",

@@ -58,6 +58,10 @@ def vertex_uncertainty(
     return variance.sqrt()
 
 
+# DeepSDF's training clamp distance: SDF values beyond it carry no training signal, so they are scored clamped.
+SDF_CLAMP = 0.1
+
+
 def propagate_to_sdf(
     decoder,
     mu: Tensor,
@@ -66,7 +70,7 @@ def propagate_to_sdf(
     method: str = "mc",
     n_samples: int = 10,
     seed: int = 0,
-    clamp: float | None = 0.1,
+    clamp: float | None = SDF_CLAMP,
     bf16: bool = False,
 ) -> tuple[Tensor, Tensor]:
     """SDF mean and variance [P] at points [P, 3] for one latent Gaussian (mu, var [D]), clamped values.

@@ -23,7 +23,7 @@ from ushape.data.layout import WorldIndex
 from ushape.data.sdf_dataset import sdf_points
 from ushape.decoder.artifacts import codes_file, load_codes
 from ushape.encoder.datamodule import RenderDataset
-from ushape.propagation import propagate_to_sdf
+from ushape.propagation import SDF_CLAMP, propagate_to_sdf
 from ushape.recalibration.temperature import (
     apply_temperature,
     fit_calibration_temperature,
@@ -31,8 +31,6 @@ from ushape.recalibration.temperature import (
     gaussian_nll_with_temperature,
 )
 from ushape.reconstruction.predictor import Predictor, temperature_path
-
-SDF_CLAMP = 0.1  # the decoder's training clamp, at which evaluation scores SDF values
 
 
 def val_predictions(
