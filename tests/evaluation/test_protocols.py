@@ -7,10 +7,10 @@ import pytest
 import torch
 from eval_world import RADII, FakePredictor, make_run, tiny_settings
 
-from ushape.data.augment import CompositeBackground, load_rgba, resize
+from ushape.data.augment import CompositeBackground, corrupted_view, load_rgba, resize, view_seed
 from ushape.evaluation import protocols as P
 from ushape.evaluation.runner import evaluate_all, evaluate_encoder
-from ushape.evaluation.views import ViewKey, corrupted_view, encode_views, view_seed
+from ushape.evaluation.views import ViewKey, encode_views
 
 
 def _keys(n_shapes, n_views):

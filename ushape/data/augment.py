@@ -12,6 +12,7 @@ Every random step takes an optional torch.Generator, so evaluation can be made r
 from __future__ import annotations
 
 import math
+import zlib
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -245,3 +246,24 @@ def build_transform(
     if flip:
         steps.append(RandomHorizontalFlip())
     return Compose([*steps, composite])
+
+
+def view_seed(seed: int, shape_id: str, view: int) -> int:
+    """A generator seed that depends only on (seed, shape id, view): stable across runs and processes."""
+    return (seed * 1_000_003 + zlib.crc32(f"{shape_id}/{view}".encode())) % (2**63 - 1)
+
+
+def corrupted_view(
+    rgba: Tensor,
+    image_size: int,
+    min_scale: float,
+    seed: int,
+    mask_mode: str = "gt_mask",
+    background_value: float = 1.0,
+) -> Tensor:
+    """Premultiplied RGBA [4, H, W] -> RGB [3, S, S]: a random crop of area in [min_scale, 1], resized, composited.
+
+    min_scale = 1 keeps the whole image (the uncorrupted protocol). Deterministic in `seed`.
+    """
+    transform = Compose([RandomResizedCrop(image_size, min_scale), CompositeBackground(mask_mode, background_value)])
+    return transform(rgba, torch.Generator().manual_seed(seed))

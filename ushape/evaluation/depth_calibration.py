@@ -23,12 +23,13 @@ import trimesh
 from torch import Tensor
 from tqdm.auto import tqdm
 
+from ushape.data.augment import view_seed
 from ushape.data.layout import WorldIndex
 from ushape.data.rendering import RayCaster, render_mesh
 from ushape.encoder.latent_metrics import spearman_correlation
 from ushape.evaluation.locality import render_cameras
 from ushape.evaluation.protocols import EncoderSpec
-from ushape.evaluation.views import Encodings, view_seed
+from ushape.evaluation.views import Encodings
 from ushape.metrics.calibration import calibration_curve, calibration_error, two_sided_quantile
 from ushape.propagation.monte_carlo import sample_codes
 from ushape.reconstruction.depth_implicit import depth_stats

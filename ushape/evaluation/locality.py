@@ -4,7 +4,7 @@ For each test view with its camera, points sampled on the ground-truth surface a
 encoder was shown:
   visible / hidden    the first ray hit from the camera is the point itself / something else
   kept / away         visible points inside / outside the crop window of the view's corrupted copy
-                      (the same crop the corrupted-views protocol uses, from `views.view_seed`)
+                      (the same crop the corrupted-views protocol uses, from `augment.view_seed`)
 The SDF std at every point is propagated (linearised) from the view's latent Gaussian, once for the
 clean image and once for the cropped one, and compared as ratios of medians:
   hidden_over_visible     clean input: std on hidden points / std on visible points
@@ -35,11 +35,11 @@ from PIL import Image
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from ushape.data.augment import CROP_RATIO, crop_box
+from ushape.data.augment import CROP_RATIO, crop_box, view_seed
 from ushape.data.cameras import camera_centre, project
 from ushape.data.layout import WorldIndex
 from ushape.evaluation.protocols import EncoderSpec
-from ushape.evaluation.views import Encodings, ViewKey, view_seed
+from ushape.evaluation.views import Encodings, ViewKey
 from ushape.fusion.rules import fuse_bayesian
 from ushape.mesh.visibility import median_ratio, visible_points
 from ushape.propagation import propagate

@@ -12,7 +12,6 @@ trained to) or as a photo (`"none"`: alpha ignored, the RGB background kept; Pix
 from __future__ import annotations
 
 import hashlib
-import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -22,7 +21,7 @@ from torch import Tensor
 from tqdm.auto import tqdm
 
 from ushape import atomic
-from ushape.data.augment import Compose, CompositeBackground, RandomResizedCrop, load_rgba, read_image
+from ushape.data.augment import corrupted_view, load_rgba, read_image, view_seed
 from ushape.data.layout import WorldIndex
 
 MASK_INPUTS = ("gt_mask", "none")
@@ -32,27 +31,6 @@ MASK_INPUTS = ("gt_mask", "none")
 class ViewKey:
     shape_id: str
     view: int
-
-
-def view_seed(seed: int, shape_id: str, view: int) -> int:
-    """A generator seed that depends only on (seed, shape id, view): stable across runs and processes."""
-    return (seed * 1_000_003 + zlib.crc32(f"{shape_id}/{view}".encode())) % (2**63 - 1)
-
-
-def corrupted_view(
-    rgba: Tensor,
-    image_size: int,
-    min_scale: float,
-    seed: int,
-    mask_mode: str = "gt_mask",
-    background_value: float = 1.0,
-) -> Tensor:
-    """Premultiplied RGBA [4, H, W] -> RGB [3, S, S]: a random crop of area in [min_scale, 1], resized, composited.
-
-    min_scale = 1 keeps the whole image (the uncorrupted protocol). Deterministic in `seed`.
-    """
-    transform = Compose([RandomResizedCrop(image_size, min_scale), CompositeBackground(mask_mode, background_value)])
-    return transform(rgba, torch.Generator().manual_seed(seed))
 
 
 def test_views(world: WorldIndex, split: str = "test", shape_ids: Sequence[str] | None = None) -> list[ViewKey]:
