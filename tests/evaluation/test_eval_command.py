@@ -8,7 +8,7 @@ from eval_world import fit_sphere_run
 from hydra import compose, initialize_config_dir
 
 from ushape.evaluation.command import configured_setting, protocols_for, run_eval
-from ushape.evaluation.runner import PROTOCOLS
+from ushape.evaluation.runner import PAPER_PROTOCOLS
 
 CONF = str(__import__("pathlib").Path(__file__).resolve().parents[2] / "conf")
 
@@ -19,7 +19,7 @@ def _compose(overrides):
 
 
 def test_sweep_jobs_score_only_their_setting_unless_told_otherwise():
-    assert protocols_for("auto", multirun=False) == list(PROTOCOLS)
+    assert protocols_for("auto", multirun=False) == list(PAPER_PROTOCOLS)  # active only when asked for
     assert protocols_for("auto", multirun=True) == []
     assert protocols_for(["single_view"], multirun=True) == ["single_view"]
     fuse, name, scale = configured_setting(_compose(["fusion=bayesian_k", "fusion.k=2", "crop.min_scale=0.1"]))

@@ -12,7 +12,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from ushape.builders import build
 from ushape.evaluation.report import write_results
-from ushape.evaluation.runner import PROTOCOLS, Settings, evaluate_runs
+from ushape.evaluation.runner import PAPER_PROTOCOLS, Settings, evaluate_runs
 from ushape.evaluation.sources import resolve_runs
 from ushape.training.summary import discard_if_bookkeeping_only
 from ushape.training.validation import ConfigError, check_config
@@ -21,9 +21,10 @@ log = logging.getLogger(__name__)
 
 
 def protocols_for(requested, multirun: bool) -> list[str]:
-    """`auto`: every protocol in a single run; none in a sweep's job (each job is one fusion/crop row)."""
+    """`auto`: every paper protocol in a single run (not `active`: ask for it by name); none in a sweep's job
+    (each job is one fusion/crop row)."""
     if requested == "auto":
-        return [] if multirun else list(PROTOCOLS)
+        return [] if multirun else list(PAPER_PROTOCOLS)
     if isinstance(requested, str):
         requested = [requested]
     return list(requested)

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from ushape import atomic
-from ushape.evaluation import plots, tables
+from ushape.evaluation import active, plots, tables
 from ushape.evaluation.runner import RESULT_ROW, RESULTS
 
 PLOTS_DIR = "plots"
@@ -53,6 +53,8 @@ def build_tables(result: dict[str, Any]) -> list[tables.Table]:
         built.append(tables.table_locality(result["locality"]))
     if result.get("depth"):
         built.append(tables.table_depth(result["depth"]))
+    if any(r["protocol"] == active.PROTOCOL for r in result["records"]):
+        built.append(active.table_active(result["records"]))
     return [t for t in built if t.rows]
 
 
@@ -72,6 +74,8 @@ def build_figures(result: dict[str, Any]) -> dict[str, Any]:
         figures["iou_vs_k"] = plots.iou_vs_k(summary, settings["group_size"])
     if len({r["min_scale"] for r in summary if r["protocol"] == "multi"}) > 1:
         figures["iou_vs_min_scale"] = plots.iou_vs_min_scale(summary, settings["table4_k"])
+    if any(r["protocol"] == active.PROTOCOL for r in result["records"]):
+        figures["active_iou_vs_views"] = active.plot_active(result["records"])
     return figures
 
 

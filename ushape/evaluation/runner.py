@@ -28,6 +28,7 @@ from ushape.data.world import open_world
 from ushape.decoder.artifacts import CodeTable, codes_file, load_codes, save_codes
 from ushape.decoder.latent_optim import optimise_codes
 from ushape.evaluation import protocols as P
+from ushape.evaluation.active import active_records, check_active_settings, save_active_sequence
 from ushape.evaluation.code_metrics import Reconstructor
 from ushape.evaluation.depth_calibration import depth_calibration_rows
 from ushape.evaluation.locality import has_cameras, locality_records, summarise_locality
@@ -47,7 +48,8 @@ from ushape.reconstruction.depth_implicit import DEPTH_METHODS
 
 log = logging.getLogger(__name__)
 
-PROTOCOLS = ("single_view", "multi_view", "corrupted", "uncertainty", "locality", "depth")
+PAPER_PROTOCOLS = ("single_view", "multi_view", "corrupted", "uncertainty", "locality", "depth")
+PROTOCOLS = (*PAPER_PROTOCOLS, "active")  # active: next-best-view (evaluation/active.py), asked for by name
 LOSS_NAMES = {"energy_score": "es", "gaussian_nll": "nll", "l2_loss": "l2"}
 RESULT_ROW = "eval_row.json"
 # The row lists every encoder contributes to an evaluation's result (concatenated over encoders).
@@ -86,8 +88,15 @@ class Settings:
     max_shapes: int | None = None
     showcase_shapes: int = 2
     code_iterations: int = 800
+    active_views: int = 6
+    active_strategies: Sequence[str] = ("uncertainty", "unseen-uncertainty", "farthest", "random", "oracle")
+    active_scales: Sequence[float] = (1.0, 0.1)
+    active_shapes: int | None = None
+    active_candidates: str = "auto"
+    active_azimuths: int = 12
+    active_elevations: int = 2
     seed: int = 0
-    protocols: Sequence[str] = PROTOCOLS
+    protocols: Sequence[str] = PAPER_PROTOCOLS
 
     def __post_init__(self) -> None:
         unknown = [p for p in self.protocols if p not in PROTOCOLS]
@@ -100,6 +109,7 @@ class Settings:
                 f"depth_methods must be some of {DEPTH_METHODS}, depth_size >= 1 and depth_codes >= 2; "
                 f"got {list(self.depth_methods)}, {self.depth_size}, {self.depth_codes}"
             )
+        check_active_settings(self)
 
 
 @dataclass
@@ -294,6 +304,8 @@ def evaluate_encoder(
             settings.locality_views,
         )
         out["locality"] = summarise_locality(out["locality_views"])
+    if "active" in protocols:
+        out["records"] += active_records(run, settings, split_codes(run, settings, cache_dir))
     if "depth" in protocols:
         out["depth"], curves = depth_protocol(run, settings, encode)
         out["curves"]["depth"] = curves_to_json(curves)
@@ -417,6 +429,8 @@ def evaluate_all(
                 settings.resolution,
                 settings.mc_samples,
             )
+        if showcase_dir is not None and "active" in settings.protocols and run.only is None:
+            save_active_sequence(run, settings, showcase_dir)
     if runs and "single_view" in settings.protocols:
         result["records"] += reference_rows(runs[0], settings, cache_dir)
     result["summary"] = P.summarise(result["records"])

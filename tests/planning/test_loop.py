@@ -1,0 +1,108 @@
+"""The active-reconstruction loop on the ellipsoid world: fusion, each strategy's known choices, acquisition crops.
+
+The world's 8 recorded views orbit the object at azimuths 0, 45, ..., 315 (elevation 20). The analytic
+decoder's code sets only the x semi-axis a, so the SDF variance on the surface is largest on the two
+caps at x = +-a and zero on the ring x = 0: a view from the +x or -x side sees the uncertain surface.
+"""
+
+import numpy as np
+import pytest
+import torch
+from eval_world import FakePredictor
+
+from ushape.data.augment import corrupted_view, load_rgba, view_seed
+from ushape.fusion.rules import fuse_bayesian
+from ushape.planning import ViewEncoder, active_reconstruction, build_strategy, candidate_views
+from ushape.planning.candidates import CandidateViews
+from ushape.planning.loop import PlanState
+from ushape.planning.strategies import LatentOracle
+
+
+@pytest.fixture()
+def setting(sphere_world, tmp_path):
+    predictor = FakePredictor(tmp_path / "fake.ckpt")
+    shape_id = "test_1"  # the ellipsoid elongated along x (a = 0.7, b = 0.5)
+    candidates = candidate_views(sphere_world, shape_id)
+    return predictor, candidates, ViewEncoder(predictor, candidates)
+
+
+def run(setting, name, n_views=6, start=0, **kwargs):
+    predictor, candidates, encode = setting
+    return active_reconstruction(
+        candidates, encode, build_strategy(name, **kwargs), predictor.decoder, n_views, start, resolution=24
+    )
+
+
+def test_each_step_fuses_every_view_taken_so_far(setting):
+    steps = run(setting, "random", n_views=4, start=5)
+    views = [s.view for s in steps]
+    assert views[0] == 5 and len(set(views)) == 4 and steps[0].scores is None
+    encode = setting[2]
+    for k in range(1, 5):
+        mu, var = zip(*(encode(v) for v in views[:k]))
+        fused = fuse_bayesian(torch.stack(mu), torch.stack(var))
+        torch.testing.assert_close(steps[k - 1].mu, fused.mu)
+        torch.testing.assert_close(steps[k - 1].var, fused.var)
+    assert steps[-1].var.sum() < steps[0].var.sum()  # four views are surer than one
+
+
+def test_farthest_goes_opposite_then_halfway(setting):
+    # From azimuth 0: 180 (index 4), then 90 and 270 (2, 6; ties go to the lower index), then the diagonals.
+    assert [s.view for s in run(setting, "farthest")] == [0, 4, 2, 6, 1, 3]
+
+
+def test_random_is_reproducible_and_never_repeats(setting):
+    first = [s.view for s in run(setting, "random", n_views=8, seed=3)]
+    assert sorted(first) == list(range(8))
+    assert first == [s.view for s in run(setting, "random", n_views=8, seed=3)]
+
+
+def test_uncertainty_looks_at_the_uncertain_cap_it_has_not_seen_face_on(setting):
+    steps = run(setting, "uncertainty", n_views=2, start=0)
+    assert steps[1].view == 4  # from the +x side, the -x cap (azimuth 180) holds the most uncertain surface
+    scores = steps[1].scores
+    # The x = 0 ring seen from +-z is sure: the side views score less than the cap views (by 8 % here).
+    assert scores[4] > 1.05 * scores[2] and scores[4] > 1.05 * scores[6]
+    assert steps[1].surface is not None and steps[1].surface.visible.shape[0] == 8
+
+
+def test_the_loop_stops_at_the_candidates_it_has(setting):
+    assert len(run(setting, "farthest", n_views=20)) == 8
+    with pytest.raises(ValueError, match="n_views"):
+        run(setting, "farthest", n_views=0)
+    with pytest.raises(ValueError, match="start view 8"):
+        run(setting, "farthest", start=8)
+    with pytest.raises(ValueError, match="choose one of"):
+        build_strategy("closest")
+    with pytest.raises(ValueError, match="own code"):
+        build_strategy("oracle")
+
+
+def test_the_oracle_takes_the_view_that_brings_the_fused_code_closest_to_the_answer():
+    codes = {0: torch.tensor([0.0, 0.0]), 1: torch.tensor([1.0, 0.0]), 2: torch.tensor([0.0, 3.0])}
+    dummy = np.repeat(np.eye(4)[None], 3, axis=0)
+    dummy[:, 2, 3] = 3.0  # cameras 3 in front of the origin
+    candidates = CandidateViews("s", np.repeat(np.eye(3)[None], 3, 0), dummy, np.zeros(3), "recorded", lambda i: None)
+    state = PlanState(
+        candidates, [0], None, None, 8, lambda i: (codes[i], torch.ones(2)), lambda mu, var: fuse_bayesian(mu, var)
+    )
+    scores = LatentOracle(torch.tensor([1.0, 0.0])).scores(state)
+    # Fusing view 1 gives (0.5, 0), view 2 gives (0, 1.5): distances 0.5 and 1.80 from (1, 0).
+    np.testing.assert_allclose(scores[1:], [-0.5, -np.hypot(1.0, 1.5)])
+    assert scores[0] == -np.inf
+
+
+def test_acquired_views_are_cropped_as_the_evaluation_crops_them(setting, sphere_world):
+    predictor, candidates, _ = setting
+    encode = ViewEncoder(predictor, candidates, min_scale=0.1, seed=2)
+    expected = corrupted_view(
+        load_rgba(sphere_world.image_path(candidates.shape_id, 3)),
+        predictor.image_size,
+        0.1,
+        view_seed(2, candidates.shape_id, 3),
+    )
+    assert torch.equal(encode.input(3), expected)
+    mu, var = encode(3)
+    assert mu.shape == (3,) and torch.equal(encode(3)[0], mu)  # cached: one encoding per candidate
+    with pytest.raises(ValueError, match="min_scale"):
+        ViewEncoder(predictor, candidates, min_scale=0.0)

@@ -1,0 +1,218 @@
+"""The active protocol (`eval.py protocols=[active]`): does letting the uncertainty choose the next view help?
+
+For each held-out shape, each crop setting and each strategy, the loop of `ushape.planning` starts from
+the same view (drawn per shape), acquires up to `active_views` views and fuses them (Bayesian); the
+fused code after every view is meshed and scored against the ground truth (IoU, Chamfer). A record per
+(shape, strategy, min scale, number of views) lands in the evaluation's records with protocol "active",
+so Table A, its plot and records.csv all come from them. Acquisitions are cropped like the
+corrupted-views protocol (one fixed crop per candidate), so every strategy sees the same image of a view.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import zlib
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from ushape.decoder.artifacts import CodeTable
+from ushape.evaluation.tables import Table, encoder_order
+from ushape.planning import ViewEncoder, active_reconstruction, build_strategy, candidate_views
+from ushape.planning.figures import save_sequence, sequence_figure, step_surfaces
+
+log = logging.getLogger(__name__)
+
+PROTOCOL = "active"
+REFERENCE = "random"
+
+
+def check_active_settings(settings) -> None:
+    """A ValueError that names what is wrong with the active_* settings."""
+    from ushape.planning.candidates import SOURCES
+    from ushape.planning.strategies import STRATEGIES
+
+    known = [*STRATEGIES, "oracle"]
+    unknown = [s for s in settings.active_strategies if s not in known]
+    if unknown or settings.active_views < 1 or settings.active_candidates not in SOURCES:
+        raise ValueError(
+            f"active_strategies must be some of {known}, active_views >= 1 and active_candidates one of {SOURCES}; "
+            f"got {list(settings.active_strategies)}, {settings.active_views}, {settings.active_candidates!r}"
+        )
+    if not all(0 < float(s) <= 1 for s in settings.active_scales):
+        raise ValueError(f"active_scales are crop min scales in (0, 1], got {list(settings.active_scales)}")
+
+
+def start_view(seed: int, shape_id: str, n_candidates: int) -> int:
+    """The first view of every strategy for one shape: drawn from (seed, shape id) alone."""
+    return int(np.random.default_rng([seed, zlib.crc32(shape_id.encode())]).integers(n_candidates))
+
+
+def shape_candidates(run, settings, shape_id: str):
+    return candidate_views(
+        run.world,
+        shape_id,
+        settings.active_candidates,
+        **(
+            {"n_azimuth": settings.active_azimuths, "n_elevation": settings.active_elevations}
+            if settings.active_candidates != "recorded"
+            else {}
+        ),
+    )
+
+
+def active_records(run, settings, codes: CodeTable) -> list[dict]:
+    """One record per (shape, min scale, strategy, views 1..N): the fused code after that many views, scored."""
+    if not run.spec.probabilistic:
+        log.info("active protocol skipped for %s: it predicts no variance to plan with", run.spec.label)
+        return []
+    shape_ids = list(dict.fromkeys(k.shape_id for k in run.keys))[: settings.active_shapes]
+    records = []
+    for shape_id in tqdm(shape_ids, desc=f"{run.spec.name} active", leave=False):
+        candidates = shape_candidates(run, settings, shape_id)
+        start = start_view(settings.seed, shape_id, len(candidates))
+        for scale in settings.active_scales:
+            encode = ViewEncoder(run.predictor, candidates, scale, settings.seed)
+            for name in settings.active_strategies:
+                strategy = build_strategy(name, settings.seed, codes.lookup(shape_id) if name == "oracle" else None)
+                steps = active_reconstruction(
+                    candidates, encode, strategy, run.predictor.decoder, settings.active_views, start
+                )
+                for k, step in enumerate(steps, start=1):
+                    scores = run.reconstructor.scores(step.mu, shape_id)
+                    records.append(
+                        {
+                            "encoder": run.spec.name,
+                            "label": run.spec.label,
+                            "protocol": PROTOCOL,
+                            "min_scale": float(scale),
+                            "method": name,
+                            "views": k,
+                            "shape_id": shape_id,
+                            "item": "-".join(str(s.view) for s in steps[:k]),
+                            "iou": scores["iou"],
+                            "cd": scores["cd"],
+                        }
+                    )
+    return records
+
+
+def save_active_sequence(run, settings, out_dir: Path, strategy: str = "uncertainty") -> list[Path]:
+    """The first shape's sequence under `strategy`, clean and at each crop: plots/active_sequence_*.png."""
+    if not run.spec.probabilistic or strategy not in settings.active_strategies:
+        return []
+    shape_id = run.keys[0].shape_id
+    candidates = shape_candidates(run, settings, shape_id)
+    start = start_view(settings.seed, shape_id, len(candidates))
+    written = []
+    for scale in settings.active_scales:
+        encode = ViewEncoder(run.predictor, candidates, scale, settings.seed)
+        steps = active_reconstruction(
+            candidates,
+            encode,
+            build_strategy(strategy, settings.seed),
+            run.predictor.decoder,
+            settings.active_views,
+            start,
+        )
+        surfaces = step_surfaces(steps, run.predictor.decoder, candidates, settings.resolution)
+        angles = candidates.azimuth_elevation()
+        titles = []
+        for k, step in enumerate(steps, start=1):
+            iou = run.reconstructor.scores(step.mu, shape_id)["iou"]
+            titles.append(f"view {k}: az {angles[step.view, 0]:.0f}, el {angles[step.view, 1]:.0f}\nIoU {iou:.3f}")
+        fig = sequence_figure(
+            [encode.input(s.view) for s in steps],
+            steps,
+            surfaces,
+            candidates,
+            titles,
+            f"{run.spec.label}, {strategy} strategy, {shape_id}, crops of area [{scale:g}, 1]",
+        )
+        written.append(save_sequence(fig, out_dir / "plots" / f"active_sequence_{run.spec.name}_{scale:g}.png"))
+    return written
+
+
+def curves(records: Sequence[dict]) -> dict[tuple, dict[int, list[float]]]:
+    """(encoder, min scale, strategy) -> views -> per-shape IoU (in shape order)."""
+    out: dict[tuple, dict[int, list[float]]] = {}
+    for r in records:
+        if r["protocol"] == PROTOCOL:
+            out.setdefault((r["encoder"], r["min_scale"], r["method"]), {}).setdefault(r["views"], []).append(r["iou"])
+    return out
+
+
+def views_to_reach(means: dict[int, float], target: float) -> int | None:
+    """The fewest views whose mean IoU reaches target (None: none does)."""
+    return next((k for k in sorted(means) if means[k] >= target - 1e-12), None)
+
+
+def standard_error(values: Sequence[float]) -> float:
+    """Standard error of the mean of values (0 for fewer than two)."""
+    return float(np.std(values, ddof=1) / math.sqrt(len(values))) if len(values) > 1 else 0.0
+
+
+def paired_gain(curve: dict[int, list[float]], reference: dict[int, list[float]]) -> tuple[float, float]:
+    """Mean per-shape IoU gain over the reference across views 2..N, and its standard error over shapes."""
+    views = [k for k in sorted(curve) if k > 1 and k in reference]
+    if not views:
+        return math.nan, math.nan
+    gains = np.mean([np.subtract(curve[k], reference[k]) for k in views], axis=0)  # [shapes]
+    return float(gains.mean()), standard_error(gains) if len(gains) > 1 else math.nan
+
+
+def table_active(records: Sequence[dict]) -> Table:
+    """Table A: IoU after 1..N views per strategy (mean over shapes; sd at N), and against random."""
+    data = curves(records)
+    n = max((max(c) for c in data.values()), default=0)
+    reach = n - 1 if n > 2 else n
+    table = Table(
+        "Table A: active reconstruction (IoU after k views)",
+        f"Each held-out shape starts from the same view for every strategy; views fused by the Bayesian rule. "
+        f"'gain vs random': mean per-shape IoU difference over views 2-{n}, +- its standard error over shapes. "
+        f"'views to reach': the fewest views whose mean IoU reaches random's at {reach} views. The oracle "
+        "picks by the true code: a bound, not a strategy.",
+        ["Encoder", "min scale", "strategy", *[f"IoU {k}" for k in range(1, n + 1)], f"sd {n}", "shapes"]
+        + ["gain vs random", "s.e.", f"views to reach random@{reach}"],
+    )
+    labels = dict(encoder_order([{"encoder": r["encoder"], "label": r["label"]} for r in records]))
+    for (encoder, scale, method), curve in sorted(data.items(), key=lambda item: (item[0][0], -item[0][1])):
+        means = {k: float(np.mean(v)) for k, v in curve.items()}
+        reference = data.get((encoder, scale, REFERENCE), {})
+        gain, se = paired_gain(curve, reference) if method != REFERENCE else (math.nan, math.nan)
+        target = float(np.mean(reference[reach])) if reach in reference else None
+        table.rows.append(
+            [labels.get(encoder, encoder), scale, method, *[means.get(k) for k in range(1, n + 1)]]
+            + [float(np.std(curve[n], ddof=1)) if len(curve.get(n, [])) > 1 else None, len(curve.get(1, []))]
+            + [gain, se, None if target is None else (views_to_reach(means, target) or f"> {n}")]
+        )
+    return table
+
+
+def plot_active(records: Sequence[dict]):
+    """IoU against views taken, one panel per crop setting, a line per strategy with a +-1 s.e. band."""
+    from matplotlib.figure import Figure
+
+    data = curves(records)
+    scales = sorted({key[1] for key in data}, reverse=True)
+    fig = Figure(figsize=(4.6 * max(len(scales), 1), 3.6))
+    axes = fig.subplots(1, max(len(scales), 1), squeeze=False)[0]
+    for ax, scale in zip(axes, scales):
+        for (encoder, s, method), curve in sorted(data.items()):
+            if s != scale:
+                continue
+            views = sorted(curve)
+            mean = np.array([np.mean(curve[k]) for k in views])
+            se = np.array(
+                [np.std(curve[k], ddof=1) / math.sqrt(len(curve[k])) if len(curve[k]) > 1 else 0 for k in views]
+            )
+            style = {"linestyle": ":"} if method == "oracle" else {}
+            (line,) = ax.plot(views, mean, marker="o", label=f"{encoder} {method}", **style)
+            ax.fill_between(views, mean - se, mean + se, color=line.get_color(), alpha=0.15)
+        ax.set(xlabel="views taken", ylabel="IoU", title=f"crops of area [{scale:g}, 1]")
+        ax.legend(fontsize="x-small")
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,172 @@
+"""The active-reconstruction loop: start from one view, fuse, look at the uncertainty, pick the next view, repeat.
+
+    candidates = candidate_views(world, shape_id)               # poses on the orbit, or the recorded views
+    encode = ViewEncoder(predictor, candidates, min_scale=1.0)  # acquire (render / read), crop, encode
+    steps = active_reconstruction(candidates, encode, UncertainSurface(), predictor.decoder, n_views=6)
+    steps[k - 1].mu                                             # the fused code after k views
+
+Each step fuses every view taken so far (Bayesian by default, pose-free as in the paper), meshes the
+fused code's mean, propagates the fused latent variance to the mesh's vertices (linearised) and lets the
+strategy score every candidate not yet taken; the best is acquired next.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Callable, Protocol
+
+import numpy as np
+import torch
+import trimesh
+from torch import Tensor
+
+from ushape.data.augment import corrupted_view, view_seed
+from ushape.fusion.rules import FusedCode
+from ushape.fusion.strategies import BayesianFusion
+from ushape.mesh.extraction import EmptySurfaceError, marching_cubes
+from ushape.planning.candidates import CandidateViews
+from ushape.planning.criteria import vertex_areas, visible_from
+from ushape.propagation.field import decode_field
+from ushape.propagation.linearised import propagate_linearised
+
+Encode = Callable[[int], tuple[Tensor, Tensor]]  # candidate index -> (mu [D], var [D]) of its acquired image
+Fusion = Callable[[Tensor, Tensor], FusedCode]  # (mu [V, D], var [V, D]) -> fused
+
+
+@dataclass(frozen=True)
+class Surface:
+    """The fused code's mesh with its SDF variance per vertex, and what each candidate would see of it."""
+
+    mesh: trimesh.Trimesh
+    variance: np.ndarray  # [V] linearised SDF variance at each vertex
+    area: np.ndarray  # [V] the surface each vertex stands for
+    visible: np.ndarray  # [C, V] bool: candidate c sees vertex v
+    seen: np.ndarray  # [V] bool: a view already taken sees vertex v
+
+
+def surface_of(
+    decoder, fused: FusedCode, candidates: CandidateViews, taken: list[int], resolution: int = 40
+) -> Surface | None:
+    """The Surface of the fused code's mean (None when its SDF has no zero level set in [-1, 1]^3)."""
+    try:
+        mesh = marching_cubes(decode_field(decoder, fused.mu, resolution))
+    except EmptySurfaceError:
+        return None
+    vertices = torch.as_tensor(np.asarray(mesh.vertices), dtype=torch.float32)
+    _, variance = propagate_linearised(decoder, fused.mu.float(), fused.var.float(), vertices)
+    visible = visible_from(mesh, candidates.K, candidates.world_to_cam, candidates.image_hw)
+    return Surface(
+        mesh,
+        variance.double().numpy(),
+        vertex_areas(mesh.vertices, mesh.faces),
+        visible,
+        visible[taken].any(axis=0),
+    )
+
+
+@dataclass
+class PlanState:
+    """What a strategy may look at when it scores the candidates: the poses, the views taken, the fused code."""
+
+    candidates: CandidateViews
+    taken: list[int]
+    fused: FusedCode
+    decoder: object
+    resolution: int
+    encode: Encode  # only an oracle looks at a candidate's image before it is taken
+    fusion: Fusion
+
+    @cached_property
+    def surface(self) -> Surface | None:
+        """The current mesh and its vertex variance, computed when a strategy first asks for it."""
+        return surface_of(self.decoder, self.fused, self.candidates, self.taken, self.resolution)
+
+
+class Strategy(Protocol):
+    name: str
+
+    def scores(self, state: PlanState) -> np.ndarray:
+        """[C] one score per candidate, higher is better (taken candidates are skipped whatever their score)."""
+
+
+@dataclass(frozen=True)
+class Step:
+    """One acquisition: the candidate taken, the fused Gaussian after it, and the scores that chose it."""
+
+    view: int
+    mu: Tensor  # [D] fused mean after this view
+    var: Tensor  # [D] fused variance after this view
+    scores: np.ndarray | None = None  # [C] the strategy's scores when this view was chosen (None: the start)
+    surface: Surface | None = field(default=None, repr=False)  # the surface those scores were computed on
+
+
+def active_reconstruction(
+    candidates: CandidateViews,
+    encode: Encode,
+    strategy: Strategy,
+    decoder,
+    n_views: int,
+    start: int = 0,
+    fusion: Fusion | None = None,
+    resolution: int = 40,
+) -> list[Step]:
+    """Acquire up to n_views candidates, starting from `start`, each next one the strategy's best untaken one."""
+    if n_views < 1:
+        raise ValueError(f"n_views must be >= 1, got {n_views}")
+    if not 0 <= start < len(candidates):
+        raise ValueError(f"start view {start} is not one of the {len(candidates)} candidates")
+    fusion = fusion or BayesianFusion()
+    taken, mus, variances, steps = [], [], [], []
+    view, scores, surface = start, None, None
+    while True:
+        mu, var = encode(view)
+        taken.append(view)
+        mus.append(mu)
+        variances.append(var)
+        fused = fusion(torch.stack(mus), torch.stack(variances))
+        steps.append(Step(view, fused.mu, fused.var, scores, surface))
+        if len(taken) >= min(n_views, len(candidates)):
+            return steps
+        state = PlanState(candidates, list(taken), fused, decoder, resolution, encode, fusion)
+        scores = np.asarray(strategy.scores(state), dtype=np.float64)
+        if scores.shape != (len(candidates),):
+            raise ValueError(f"strategy {strategy.name} gave {scores.shape} scores for {len(candidates)} candidates")
+        surface = state.__dict__.get("surface")  # kept only if the strategy computed it
+        open_scores = np.where(np.isin(np.arange(len(candidates)), taken), -np.inf, scores)
+        view = int(np.argmax(open_scores))  # ties: the lowest index
+
+
+class ViewEncoder:
+    """Candidate index -> (mu [D], var [D]) of its acquired image as the encoder sees it (cached per candidate).
+
+    The image is cropped to a random area in [min_scale, 1] and composited on the model's background, as the
+    corrupted-views protocol does; each candidate's crop is seeded by (seed, shape, candidate), so a view
+    looks the same whichever strategy takes it. A recorded candidate gets exactly the evaluation's crop of
+    that view.
+    """
+
+    def __init__(self, predictor, candidates: CandidateViews, min_scale: float = 1.0, seed: int = 0) -> None:
+        if not 0 < min_scale <= 1:
+            raise ValueError(f"min_scale must be in (0, 1], got {min_scale}")
+        self.predictor, self.candidates, self.min_scale, self.seed = predictor, candidates, min_scale, seed
+        self._cache: dict[int, tuple[Tensor, Tensor]] = {}
+
+    def input(self, index: int) -> Tensor:
+        """RGB [3, S, S]: the acquired image, cropped and composited as the encoder gets it."""
+        name = self.candidates.shape_id if self.candidates.source == "recorded" else f"{self.candidates.shape_id}@orbit"
+        p = self.predictor
+        return corrupted_view(
+            self.candidates.image(index),
+            p.image_size,
+            self.min_scale,
+            view_seed(self.seed, name, index),
+            p.mask_mode,
+            p.background_value,
+        )
+
+    def __call__(self, index: int) -> tuple[Tensor, Tensor]:
+        if index not in self._cache:
+            mu, var = self.predictor.encode(self.input(index)[None])
+            self._cache[index] = (mu[0].float(), var[0].float())
+        return self._cache[index]

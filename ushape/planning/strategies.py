@@ -1,0 +1,108 @@
+"""Next-view strategies: each scores every candidate from the loop's state (`PlanState`), higher is better.
+
+- uncertainty: the uncertain surface a candidate would see of the current mesh (the paper's proposed use).
+- unseen-uncertainty: the same over the surface no view taken so far has seen.
+- farthest: the candidate farthest (in angle about the object) from every view taken; geometry only.
+- random: a uniformly random candidate (reproducible per shape and step).
+- oracle: the candidate whose image brings the fused code closest to the shape's own code. It looks at
+  every candidate's image and at the answer, so it is no strategy a robot could run: it bounds how much
+  any choice of views can give with this encoder.
+"""
+
+from __future__ import annotations
+
+import zlib
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ushape.planning.criteria import angular_gap, uncertain_surface, unseen_uncertain_surface
+from ushape.planning.loop import PlanState
+
+
+def directions(state: PlanState) -> np.ndarray:
+    """[C, 3] from the object's centre to each candidate camera."""
+    return state.candidates.centres - state.candidates.target
+
+
+class FarthestView:
+    name = "farthest"
+
+    def scores(self, state: PlanState) -> np.ndarray:
+        return angular_gap(directions(state), state.taken)
+
+
+class RandomView:
+    name = "random"
+
+    def __init__(self, seed: int = 0) -> None:
+        self.seed = seed
+
+    def scores(self, state: PlanState) -> np.ndarray:
+        key = [self.seed, zlib.crc32(state.candidates.shape_id.encode()), len(state.taken)]
+        return np.random.default_rng(key).random(len(state.candidates))
+
+
+class UncertainSurface:
+    """Sum of SDF variance x area over the mesh vertices a candidate sees. Where the fused code has no
+    surface there is nothing to score, and the farthest view is taken instead."""
+
+    name = "uncertainty"
+
+    def scores(self, state: PlanState) -> np.ndarray:
+        surface = state.surface
+        if surface is None:
+            return FarthestView().scores(state)
+        return uncertain_surface(surface.visible, surface.variance, surface.area)
+
+
+class UnseenUncertainSurface:
+    """`UncertainSurface` over the vertices that no view taken so far sees; once every candidate's unseen
+    part is empty (or there is no surface), the farthest view."""
+
+    name = "unseen-uncertainty"
+
+    def scores(self, state: PlanState) -> np.ndarray:
+        surface = state.surface
+        if surface is None:
+            return FarthestView().scores(state)
+        score = unseen_uncertain_surface(surface.visible, surface.variance, surface.area, surface.seen)
+        open_scores = np.delete(score, state.taken)
+        return score if open_scores.size and open_scores.max() > 0 else FarthestView().scores(state)
+
+
+class LatentOracle:
+    """Minus the distance from the fused code (views taken plus the candidate) to the shape's own code."""
+
+    name = "oracle"
+
+    def __init__(self, true_code: Tensor) -> None:
+        self.true_code = true_code.float()
+
+    def scores(self, state: PlanState) -> np.ndarray:
+        taken = [state.encode(i) for i in state.taken]
+        scores = np.full(len(state.candidates), -np.inf)
+        for c in range(len(state.candidates)):
+            if c in state.taken:
+                continue
+            mu, var = zip(*taken, state.encode(c))
+            fused = state.fusion(torch.stack(mu), torch.stack(var))
+            scores[c] = -float((fused.mu - self.true_code).norm())
+        return scores
+
+
+STRATEGIES = {
+    s.name: s for s in (UncertainSurface, UnseenUncertainSurface, FarthestView, RandomView)
+}  # what a robot can run; the oracle needs the answer
+
+
+def build_strategy(name: str, seed: int = 0, true_code: Tensor | None = None):
+    """A strategy by name (one of STRATEGIES, or "oracle" given the shape's own code)."""
+    if name == LatentOracle.name:
+        if true_code is None:
+            raise ValueError("the oracle strategy needs the shape's own code (it scores against the answer)")
+        return LatentOracle(true_code)
+    if name not in STRATEGIES:
+        raise ValueError(f"unknown strategy {name!r}; choose one of {[*STRATEGIES, LatentOracle.name]}")
+    return RandomView(seed) if name == RandomView.name else STRATEGIES[name]()
