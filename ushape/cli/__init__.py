@@ -3,11 +3,12 @@
     ushape train loss=es category=tables        stage 2 (stage 1 first if needed); Hydra overrides
     ushape eval sweep=outputs/multirun/...      the paper's tables; Hydra overrides
     ushape reconstruct view.png --fusion bayesian_k
+    ushape active --shape <id> --strategy uncertainty --views 6
     ushape bench --quick
     ushape gather | report | gallery | sign-bench ...
 
 `ushape <command> --help` shows a command's options. From a source checkout the root scripts
-(`python train.py`, `eval.py`, `reconstruct.py`, `bench.py`) run the same commands.
+(`python train.py`, `eval.py`, `reconstruct.py`, `active.py`, `bench.py`) run the same commands.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("ushape.cli.train", "train stage 1 and/or stage 2 (Hydra: loss=es category=tables, -m for sweeps)"),
     "eval": ("ushape.cli.eval", "evaluate trained runs: the paper's tables and plots (Hydra overrides)"),
     "reconstruct": ("ushape.reconstruction.cli", "images -> mesh with per-vertex uncertainty and depth maps"),
+    "active": ("ushape.cli.active", "next-best-view: reconstruct one object view by view, each chosen by a strategy"),
     "bench": ("ushape.bench.cli", "time the paper's computation table on this machine"),
     "gather": ("ushape.evaluation.gather", "one table from an evaluation sweep's folders"),
     "report": ("ushape.decoder.report", "a stage-1 decoder folder's reconstruction report"),
