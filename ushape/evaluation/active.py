@@ -20,9 +20,12 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from ushape.decoder.artifacts import CodeTable
+from ushape.evaluation.active_diagnostics import decision_diagnostics, view_spread
 from ushape.evaluation.tables import Table, encoder_order
 from ushape.planning import ViewEncoder, active_reconstruction, build_strategy, candidate_views
+from ushape.planning.candidates import SOURCES
 from ushape.planning.figures import save_sequence, sequence_figure, step_surfaces
+from ushape.planning.strategies import STRATEGIES
 
 log = logging.getLogger(__name__)
 
@@ -32,9 +35,6 @@ REFERENCE = "random"
 
 def check_active_settings(settings) -> None:
     """A ValueError that names what is wrong with the active_* settings."""
-    from ushape.planning.candidates import SOURCES
-    from ushape.planning.strategies import STRATEGIES
-
     known = [*STRATEGIES, "oracle"]
     unknown = [s for s in settings.active_strategies if s not in known]
     if unknown or settings.active_views < 1 or settings.active_candidates not in SOURCES:
@@ -64,40 +64,38 @@ def shape_candidates(run, settings, shape_id: str):
     )
 
 
-def active_records(run, settings, codes: CodeTable) -> list[dict]:
-    """One record per (shape, min scale, strategy, views 1..N): the fused code after that many views, scored."""
+def active_records(run, settings, codes: CodeTable) -> tuple[list[dict], list[dict]]:
+    """Records: one per (shape, min scale, strategy, views 1..N), the fused code after that many views, scored.
+    Diagnostics: one per sequence, its views' spread and what its decisions were based on (Table A-why)."""
     if not run.spec.probabilistic:
         log.info("active protocol skipped for %s: it predicts no variance to plan with", run.spec.label)
-        return []
+        return [], []
     shape_ids = list(dict.fromkeys(k.shape_id for k in run.keys))[: settings.active_shapes]
-    records = []
+    records, diagnostics = [], []
     for shape_id in tqdm(shape_ids, desc=f"{run.spec.name} active", leave=False):
         candidates = shape_candidates(run, settings, shape_id)
         start = start_view(settings.seed, shape_id, len(candidates))
+        true_code = codes.lookup(shape_id)
         for scale in settings.active_scales:
             encode = ViewEncoder(run.predictor, candidates, scale, settings.seed)
             for name in settings.active_strategies:
-                strategy = build_strategy(name, settings.seed, codes.lookup(shape_id) if name == "oracle" else None)
+                strategy = build_strategy(name, settings.seed, true_code if name == "oracle" else None)
                 steps = active_reconstruction(
                     candidates, encode, strategy, run.predictor.decoder, settings.active_views, start
                 )
+                row = {"encoder": run.spec.name, "label": run.spec.label, "min_scale": float(scale), "method": name}
                 for k, step in enumerate(steps, start=1):
                     scores = run.reconstructor.scores(step.mu, shape_id)
+                    views = "-".join(str(s.view) for s in steps[:k])
                     records.append(
-                        {
-                            "encoder": run.spec.name,
-                            "label": run.spec.label,
-                            "protocol": PROTOCOL,
-                            "min_scale": float(scale),
-                            "method": name,
-                            "views": k,
-                            "shape_id": shape_id,
-                            "item": "-".join(str(s.view) for s in steps[:k]),
-                            "iou": scores["iou"],
-                            "cd": scores["cd"],
-                        }
+                        {**row, "protocol": PROTOCOL, "views": k, "shape_id": shape_id, "item": views}
+                        | {"iou": scores["iou"], "cd": scores["cd"]}
                     )
-    return records
+                decisions = decision_diagnostics(steps, encode, true_code, run.predictor.decoder)
+                diagnostics.append(
+                    {**row, "shape_id": shape_id, "spread": view_spread(steps, candidates), "decisions": decisions}
+                )
+    return records, diagnostics
 
 
 def save_active_sequence(run, settings, out_dir: Path, strategy: str = "uncertainty") -> list[Path]:
@@ -136,83 +134,100 @@ def save_active_sequence(run, settings, out_dir: Path, strategy: str = "uncertai
     return written
 
 
-def curves(records: Sequence[dict]) -> dict[tuple, dict[int, list[float]]]:
-    """(encoder, min scale, strategy) -> views -> per-shape IoU (in shape order)."""
+# metric -> (its name in the tables, +1 where higher is better, -1 where lower is)
+METRICS = {"iou": ("IoU", 1), "cd": ("CD", -1)}
+
+
+def curves(records: Sequence[dict], metric: str = "iou") -> dict[tuple, dict[int, list[float]]]:
+    """(encoder, min scale, strategy) -> views -> the metric per shape, in shape order (NaN: empty mesh)."""
     out: dict[tuple, dict[int, list[float]]] = {}
     for r in records:
         if r["protocol"] == PROTOCOL:
-            out.setdefault((r["encoder"], r["min_scale"], r["method"]), {}).setdefault(r["views"], []).append(r["iou"])
+            value = r.get(metric)
+            value = math.nan if value is None else float(value)
+            out.setdefault((r["encoder"], r["min_scale"], r["method"]), {}).setdefault(r["views"], []).append(value)
     return out
 
 
-def views_to_reach(means: dict[int, float], target: float) -> int | None:
-    """The fewest views whose mean IoU reaches target (None: none does)."""
-    return next((k for k in sorted(means) if means[k] >= target - 1e-12), None)
+def views_to_reach(means: dict[int, float], target: float, sign: int = 1) -> int | None:
+    """The fewest views whose mean reaches target (sign -1: at or below it); None: none does."""
+    return next((k for k in sorted(means) if sign * means[k] >= sign * target - 1e-12), None)
 
 
 def standard_error(values: Sequence[float]) -> float:
-    """Standard error of the mean of values (0 for fewer than two)."""
+    """Standard error of the mean of the finite values (0 for fewer than two)."""
+    values = np.asarray(values, np.float64)
+    values = values[np.isfinite(values)]
     return float(np.std(values, ddof=1) / math.sqrt(len(values))) if len(values) > 1 else 0.0
 
 
-def paired_gain(curve: dict[int, list[float]], reference: dict[int, list[float]]) -> tuple[float, float]:
-    """Mean per-shape IoU gain over the reference across views 2..N, and its standard error over shapes."""
+def paired_gain(curve: dict[int, list[float]], reference: dict[int, list[float]], sign: int = 1) -> tuple[float, float]:
+    """Mean per-shape improvement over the reference across views 2..N (sign -1: a drop is the improvement),
+    and its standard error over shapes; shapes with an empty mesh at some view average the other views."""
     views = [k for k in sorted(curve) if k > 1 and k in reference]
     if not views:
         return math.nan, math.nan
-    gains = np.mean([np.subtract(curve[k], reference[k]) for k in views], axis=0)  # [shapes]
+    with np.errstate(invalid="ignore"):
+        per_view = sign * np.subtract([curve[k] for k in views], [reference[k] for k in views])  # [views, shapes]
+        finite = np.isfinite(per_view).any(axis=0)
+        if not finite.any():
+            return math.nan, math.nan
+        gains = np.nanmean(per_view[:, finite], axis=0)
     return float(gains.mean()), standard_error(gains) if len(gains) > 1 else math.nan
 
 
-def table_active(records: Sequence[dict]) -> Table:
-    """Table A: IoU after 1..N views per strategy (mean over shapes; sd at N), and against random."""
-    data = curves(records)
+def table_active(records: Sequence[dict], metric: str = "iou") -> Table:
+    """Table A: the metric after 1..N views per strategy (mean over shapes; sd at N), and against random."""
+    name, sign = METRICS[metric]
+    data = curves(records, metric)
     n = max((max(c) for c in data.values()), default=0)
     reach = n - 1 if n > 2 else n
     table = Table(
-        "Table A: active reconstruction (IoU after k views)",
-        f"Each held-out shape starts from the same view for every strategy; views fused by the Bayesian rule. "
-        f"'gain vs random': mean per-shape IoU difference over views 2-{n}, +- its standard error over shapes. "
-        f"'views to reach': the fewest views whose mean IoU reaches random's at {reach} views. The oracle "
-        "picks by the true code: a bound, not a strategy.",
-        ["Encoder", "min scale", "strategy", *[f"IoU {k}" for k in range(1, n + 1)], f"sd {n}", "shapes"]
+        f"Table A: active reconstruction ({name} after k views)",
+        "Each held-out shape starts from the same view for every strategy; views fused by the Bayesian rule. "
+        f"'gain vs random': mean per-shape {name} {'gain' if sign > 0 else 'drop'} against random over views "
+        f"2-{n}, +- its standard error over shapes (positive: better than random). 'views to reach': the fewest "
+        f"views whose mean {name} reaches random's at {reach} views. The oracle picks by the true code: a bound, "
+        "not a strategy.",
+        ["Encoder", "min scale", "strategy", *[f"{name} {k}" for k in range(1, n + 1)], f"sd {n}", "shapes"]
         + ["gain vs random", "s.e.", f"views to reach random@{reach}"],
     )
     labels = dict(encoder_order([{"encoder": r["encoder"], "label": r["label"]} for r in records]))
     for (encoder, scale, method), curve in sorted(data.items(), key=lambda item: (item[0][0], -item[0][1])):
-        means = {k: float(np.mean(v)) for k, v in curve.items()}
+        means = {k: float(np.nanmean(v)) for k, v in curve.items()}
         reference = data.get((encoder, scale, REFERENCE), {})
-        gain, se = paired_gain(curve, reference) if method != REFERENCE else (math.nan, math.nan)
-        target = float(np.mean(reference[reach])) if reach in reference else None
+        gain, se = paired_gain(curve, reference, sign) if method != REFERENCE else (math.nan, math.nan)
+        target = float(np.nanmean(reference[reach])) if reach in reference else None
+        last = np.asarray(curve.get(n, []), np.float64)
         table.rows.append(
             [labels.get(encoder, encoder), scale, method, *[means.get(k) for k in range(1, n + 1)]]
-            + [float(np.std(curve[n], ddof=1)) if len(curve.get(n, [])) > 1 else None, len(curve.get(1, []))]
-            + [gain, se, None if target is None else (views_to_reach(means, target) or f"> {n}")]
+            + [float(np.nanstd(last, ddof=1)) if np.isfinite(last).sum() > 1 else None, len(curve.get(1, []))]
+            + [gain, se, None if target is None else (views_to_reach(means, target, sign) or f"> {n}")]
         )
     return table
 
 
 def plot_active(records: Sequence[dict]):
-    """IoU against views taken, one panel per crop setting, a line per strategy with a +-1 s.e. band."""
+    """IoU (top) and Chamfer (bottom) against views taken, a column per crop setting, a line per strategy
+    with a +-1 standard-error band over shapes."""
     from matplotlib.figure import Figure
 
-    data = curves(records)
-    scales = sorted({key[1] for key in data}, reverse=True)
-    fig = Figure(figsize=(4.6 * max(len(scales), 1), 3.6))
-    axes = fig.subplots(1, max(len(scales), 1), squeeze=False)[0]
-    for ax, scale in zip(axes, scales):
-        for (encoder, s, method), curve in sorted(data.items()):
-            if s != scale:
-                continue
-            views = sorted(curve)
-            mean = np.array([np.mean(curve[k]) for k in views])
-            se = np.array(
-                [np.std(curve[k], ddof=1) / math.sqrt(len(curve[k])) if len(curve[k]) > 1 else 0 for k in views]
-            )
-            style = {"linestyle": ":"} if method == "oracle" else {}
-            (line,) = ax.plot(views, mean, marker="o", label=f"{encoder} {method}", **style)
-            ax.fill_between(views, mean - se, mean + se, color=line.get_color(), alpha=0.15)
-        ax.set(xlabel="views taken", ylabel="IoU", title=f"crops of area [{scale:g}, 1]")
-        ax.legend(fontsize="x-small")
+    scales = sorted({key[1] for key in curves(records)}, reverse=True)
+    fig = Figure(figsize=(4.6 * max(len(scales), 1), 6.6))
+    axes = fig.subplots(len(METRICS), max(len(scales), 1), squeeze=False)
+    for row, (metric, (name, _)) in enumerate(METRICS.items()):
+        data = curves(records, metric)
+        for ax, scale in zip(axes[row], scales):
+            for (encoder, s, method), curve in sorted(data.items()):
+                if s != scale:
+                    continue
+                views = sorted(curve)
+                mean = np.array([np.nanmean(curve[k]) for k in views])
+                se = np.array([standard_error(curve[k]) for k in views])
+                style = {"linestyle": ":"} if method == "oracle" else {}
+                (line,) = ax.plot(views, mean, marker="o", label=f"{encoder} {method}", **style)
+                ax.fill_between(views, mean - se, mean + se, color=line.get_color(), alpha=0.15)
+            ax.set(xlabel="views taken", ylabel=name, title=f"{name}, crops of area [{scale:g}, 1]")
+            ax.legend(fontsize="x-small")
     fig.tight_layout()
     return fig

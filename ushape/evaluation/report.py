@@ -20,6 +20,7 @@ from typing import Any, Sequence
 
 from ushape import atomic
 from ushape.evaluation import active, plots, tables
+from ushape.evaluation.active_diagnostics import table_active_why
 from ushape.evaluation.runner import RESULT_ROW, RESULTS
 
 PLOTS_DIR = "plots"
@@ -54,7 +55,9 @@ def build_tables(result: dict[str, Any]) -> list[tables.Table]:
     if result.get("depth"):
         built.append(tables.table_depth(result["depth"]))
     if any(r["protocol"] == active.PROTOCOL for r in result["records"]):
-        built.append(active.table_active(result["records"]))
+        built += [active.table_active(result["records"], metric) for metric in active.METRICS]
+    if result.get("active"):
+        built.append(table_active_why(result["active"]))
     return [t for t in built if t.rows]
 
 

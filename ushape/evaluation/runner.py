@@ -53,7 +53,7 @@ PROTOCOLS = (*PAPER_PROTOCOLS, "active")  # active: next-best-view (evaluation/a
 LOSS_NAMES = {"energy_score": "es", "gaussian_nll": "nll", "l2_loss": "l2"}
 RESULT_ROW = "eval_row.json"
 # The row lists every encoder contributes to an evaluation's result (concatenated over encoders).
-ROW_KEYS = ("records", "uncertainty", "error_tracking", "locality", "locality_views", "depth", "rows")
+ROW_KEYS = ("records", "uncertainty", "error_tracking", "locality", "locality_views", "depth", "active", "rows")
 RESULTS = "results.json"
 # How a mask input shows in an encoder's name and table label (Table 1: "Ours w/ GT Mask", "Ours w/o Mask").
 MASK_VARIANTS = {"gt_mask": ("", "w/ GT Mask"), "none": ("-nomask", "w/o Mask")}
@@ -305,7 +305,8 @@ def evaluate_encoder(
         )
         out["locality"] = summarise_locality(out["locality_views"])
     if "active" in protocols:
-        out["records"] += active_records(run, settings, split_codes(run, settings, cache_dir))
+        records, out["active"] = active_records(run, settings, split_codes(run, settings, cache_dir))
+        out["records"] += records
     if "depth" in protocols:
         out["depth"], curves = depth_protocol(run, settings, encode)
         out["curves"]["depth"] = curves_to_json(curves)

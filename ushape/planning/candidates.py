@@ -59,13 +59,18 @@ class CandidateViews:
         return camera_centre(self.world_to_cam)
 
     @property
+    def directions(self) -> np.ndarray:
+        """[C, 3] from the target (the object's centre) to each camera."""
+        return self.centres - self.target
+
+    @property
     def image_hw(self) -> np.ndarray:
         """(H, W) [C, 2] of each candidate's image, from its principal point (the image centre)."""
         return np.round(2.0 * self.K[:, [1, 0], 2]).astype(np.int64)
 
     def azimuth_elevation(self) -> np.ndarray:
         """[C, 2] degrees of each camera about the target, in R2N2's convention (azimuth from +x towards +z)."""
-        d = self.centres - self.target
+        d = self.directions
         azimuth = np.degrees(np.arctan2(d[:, 2], d[:, 0])) % 360.0
         elevation = np.degrees(np.arcsin(d[:, 1] / np.linalg.norm(d, axis=1)))
         return np.stack([azimuth, elevation], axis=1)

@@ -21,16 +21,11 @@ from ushape.planning.criteria import angular_gap, uncertain_surface, unseen_unce
 from ushape.planning.loop import PlanState
 
 
-def directions(state: PlanState) -> np.ndarray:
-    """[C, 3] from the object's centre to each candidate camera."""
-    return state.candidates.centres - state.candidates.target
-
-
 class FarthestView:
     name = "farthest"
 
     def scores(self, state: PlanState) -> np.ndarray:
-        return angular_gap(directions(state), state.taken)
+        return angular_gap(state.candidates.directions, state.taken)
 
 
 class RandomView:

@@ -1,0 +1,102 @@
+"""Why a next-view strategy helps or not (Table A-why), measured on the sequences the active protocol runs.
+
+Per sequence: the spread of the views taken (mean angle between every two of them, about the object).
+Per decision of a strategy that scores the current mesh's uncertainty (steps 2..N):
+- score vs latent-error drop: the Spearman rank correlation, over the candidates still open, between the
+  strategy's score and how much nearer the fused code would come to the shape's own code with that view.
+  It peeks at every candidate's image, as the oracle does, to say whether the score knew what each view
+  would bring; > 0: it did.
+- std shrink seen / unseen: on the mesh the choice was made on, the SDF std after fusing the chosen view
+  over the std before, median over the vertices that view sees divided by the median over those it does
+  not. Below 1: seeing a part makes it surer than the rest (a local uncertainty); 1: every part shrinks alike.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+import torch
+
+from ushape.encoder.latent_metrics import spearman_correlation
+from ushape.evaluation.tables import Table, encoder_order
+from ushape.fusion.rules import fuse_bayesian
+from ushape.planning import CandidateViews, Step
+from ushape.propagation.linearised import propagate_linearised
+
+
+def view_spread(steps: Sequence[Step], candidates: CandidateViews) -> float:
+    """Mean angle (degrees) between every two views taken (NaN for a single view)."""
+    d = candidates.directions[[s.view for s in steps]]
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    pairs = [(i, j) for i in range(len(d)) for j in range(i + 1, len(d))]
+    if not pairs:
+        return math.nan
+    return float(np.degrees(np.mean([np.arccos(np.clip(d[i] @ d[j], -1.0, 1.0)) for i, j in pairs])))
+
+
+def decision_diagnostics(steps: Sequence[Step], encode, true_code: torch.Tensor, decoder) -> list[dict]:
+    """One row per step chosen on a surface: its score-vs-latent-drop correlation and std shrink ratio."""
+    rows = []
+    for k in range(1, len(steps)):
+        step, before = steps[k], steps[k - 1]
+        if step.scores is None or step.surface is None:
+            continue
+        taken = [s.view for s in steps[:k]]
+        open_views = [c for c in range(len(step.scores)) if c not in taken]
+        encoded = [encode(v) for v in taken]
+        base = float((before.mu - true_code).norm())
+        drops = []
+        for c in open_views:
+            mu, var = zip(*encoded, encode(c))
+            drops.append(base - float((fuse_bayesian(torch.stack(mu), torch.stack(var)).mu - true_code).norm()))
+        correlation = (
+            float(spearman_correlation(torch.as_tensor(step.scores[open_views]), torch.tensor(drops)))
+            if len(open_views) > 1
+            else math.nan
+        )
+        rows.append(
+            {"step": k + 1, "score_vs_latent_drop": correlation, "shrink_seen_over_unseen": _shrink(step, decoder)}
+        )
+    return rows
+
+
+def _shrink(step: Step, decoder) -> float:
+    surface = step.surface
+    vertices = torch.as_tensor(np.asarray(surface.mesh.vertices), dtype=torch.float32)
+    _, after = propagate_linearised(decoder, step.mu.float(), step.var.float(), vertices)
+    ratio = np.sqrt(after.double().numpy() / np.maximum(surface.variance, 1e-20))
+    seen = surface.visible[step.view]
+    if not seen.any() or seen.all():
+        return math.nan
+    return float(np.median(ratio[seen]) / np.median(ratio[~seen]))
+
+
+def table_active_why(rows: Sequence[dict]) -> Table:
+    """Table A-why: per strategy, the views' spread, and for the uncertainty strategies what their scores knew."""
+    table = Table(
+        "Table A-why: what the next-view choices were based on",
+        "spread: mean angle between every two views taken. score vs latent drop: Spearman correlation, over the "
+        "open candidates of each decision, of the strategy's score with how much nearer that view would bring "
+        "the fused code to the shape's own (mean over decisions; > 0: the score knew which view helps). std "
+        "shrink seen/unseen: median over decisions of the std shrink on the vertices the chosen view sees over "
+        "the shrink on those it does not (< 1: the uncertainty is local; 1: every part shrinks alike).",
+        ["Encoder", "min scale", "strategy", "sequences", "spread (deg)", "decisions", "score vs latent drop"]
+        + ["std shrink seen/unseen"],
+    )
+    labels = dict(encoder_order([{"encoder": r["encoder"], "label": r["label"]} for r in rows]))
+    groups: dict[tuple, list[dict]] = {}
+    for row in rows:
+        groups.setdefault((row["encoder"], row["min_scale"], row["method"]), []).append(row)
+    for (encoder, scale, method), items in sorted(groups.items(), key=lambda item: (item[0][0], -item[0][1])):
+        decisions = [d for item in items for d in item["decisions"]]
+        correlations = [d["score_vs_latent_drop"] for d in decisions if math.isfinite(d["score_vs_latent_drop"])]
+        shrinks = [d["shrink_seen_over_unseen"] for d in decisions if math.isfinite(d["shrink_seen_over_unseen"])]
+        spreads = [item["spread"] for item in items if math.isfinite(item["spread"])]
+        table.rows.append(
+            [labels.get(encoder, encoder), scale, method, len(items), float(np.mean(spreads)) if spreads else None]
+            + [len(decisions), float(np.mean(correlations)) if correlations else None]
+            + [float(np.median(shrinks)) if shrinks else None]
+        )
+    return table
