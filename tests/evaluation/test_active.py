@@ -104,3 +104,20 @@ def test_view_spread_is_the_mean_angle_between_the_views_taken(sphere_world):
     assert math.isnan(view_spread(steps(0), candidates))
     assert view_spread(steps(0, 4), candidates) == pytest.approx(180 - 2 * 20, abs=1e-4)  # over the top
     assert view_spread(steps(0, 0, 4), candidates) == pytest.approx(2 * 140 / 3, abs=1e-4)
+
+
+def test_a_world_without_cameras_skips_the_protocol_and_says_why(sphere_world, sphere_codes, tmp_path, caplog):
+    import shutil
+
+    from ushape.data.layout import WorldIndex
+    from ushape.decoder.artifacts import codes_file, load_codes
+    from ushape.evaluation.active import active_records
+
+    root = tmp_path / "photos"
+    shutil.copytree(sphere_world.root, root)
+    for path in root.glob("renders/*/views.npz"):
+        path.unlink()  # photos without their cameras, as a Pix3D world
+    settings = tiny_settings(protocols=("active",), active_views=2)
+    run = make_run(WorldIndex.load(root), sphere_codes, tmp_path / "cache", "es", tmp_path, settings)
+    assert active_records(run, settings, load_codes(sphere_codes / codes_file("test"))) == ([], [])
+    assert "Table A skipped" in caplog.text and "no cameras" in caplog.text

@@ -21,6 +21,7 @@ from tqdm.auto import tqdm
 
 from ushape.decoder.artifacts import CodeTable
 from ushape.evaluation.active_diagnostics import decision_diagnostics, view_spread
+from ushape.evaluation.locality import has_cameras
 from ushape.evaluation.tables import Table, encoder_order
 from ushape.planning import ViewEncoder, active_reconstruction, build_strategy, candidate_views
 from ushape.planning.candidates import SOURCES
@@ -71,6 +72,13 @@ def active_records(run, settings, codes: CodeTable) -> tuple[list[dict], list[di
         log.info("active protocol skipped for %s: it predicts no variance to plan with", run.spec.label)
         return [], []
     shape_ids = list(dict.fromkeys(k.shape_id for k in run.keys))[: settings.active_shapes]
+    if not has_cameras(run.world, shape_ids):
+        log.warning(
+            "Table A skipped: the views of %s have no cameras (views.npz), so no candidate pose can be "
+            "scored (real photos: a world built with the photos' cameras would do)",
+            run.world.root,
+        )
+        return [], []
     records, diagnostics = [], []
     for shape_id in tqdm(shape_ids, desc=f"{run.spec.name} active", leave=False):
         candidates = shape_candidates(run, settings, shape_id)
@@ -101,6 +109,8 @@ def active_records(run, settings, codes: CodeTable) -> tuple[list[dict], list[di
 def save_active_sequence(run, settings, out_dir: Path, strategy: str = "uncertainty") -> list[Path]:
     """The first shape's sequence under `strategy`, clean and at each crop: plots/active_sequence_*.png."""
     if not run.spec.probabilistic or strategy not in settings.active_strategies:
+        return []
+    if not has_cameras(run.world, [run.keys[0].shape_id]):
         return []
     shape_id = run.keys[0].shape_id
     candidates = shape_candidates(run, settings, shape_id)
