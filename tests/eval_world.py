@@ -21,8 +21,9 @@ from ushape.data.cameras import look_at
 from ushape.data.layout import WorldIndex
 from ushape.decoder.artifacts import CodeTable, codes_file, save_codes, save_decoder
 from ushape.evaluation.code_metrics import Reconstructor
+from ushape.evaluation.encoders import EncoderRun
 from ushape.evaluation.protocols import EncoderSpec
-from ushape.evaluation.runner import EncoderRun, Settings
+from ushape.evaluation.runner import Settings
 from ushape.evaluation.views import test_views
 
 RADII = {"test_0": 0.3, "test_1": 0.7}

@@ -13,36 +13,31 @@ single-view protocol (Table 1's extra rows) with the others.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from ushape.data.layout import WorldIndex
-from ushape.data.sdf_dataset import SDFSamplesDataset
-from ushape.data.world import open_world
-from ushape.decoder.artifacts import CodeTable, codes_file, load_codes, save_codes
-from ushape.decoder.latent_optim import optimise_codes
+from ushape.decoder.artifacts import codes_file, load_codes
 from ushape.evaluation import protocols as P
 from ushape.evaluation.active import active_records, check_active_settings, save_active_sequence
-from ushape.evaluation.code_metrics import Reconstructor
 from ushape.evaluation.depth_calibration import depth_calibration_rows
+from ushape.evaluation.encoders import EncoderRun, load_encoder, mask_variants, split_codes
 from ushape.evaluation.locality import has_cameras, locality_records, summarise_locality
 from ushape.evaluation.showcase import save_showcase
 from ushape.evaluation.uncertainty_protocol import (
     curves_to_json,
-    decoder_dir_of,
     error_tracking_row,
     latent_rows,
     pooled_error_tracking_row,
     sdf_rows,
     with_shape_accuracy,
 )
-from ushape.evaluation.views import MASK_INPUTS, encode_views, test_views
+from ushape.evaluation.views import encode_views
 from ushape.propagation import SDF_CLAMP
 from ushape.reconstruction.depth_implicit import DEPTH_METHODS
 
@@ -50,13 +45,10 @@ log = logging.getLogger(__name__)
 
 PAPER_PROTOCOLS = ("single_view", "multi_view", "corrupted", "uncertainty", "locality", "depth")
 PROTOCOLS = (*PAPER_PROTOCOLS, "active")  # active: next-best-view (evaluation/active.py), asked for by name
-LOSS_NAMES = {"energy_score": "es", "gaussian_nll": "nll", "l2_loss": "l2"}
 RESULT_ROW = "eval_row.json"
 # The row lists every encoder contributes to an evaluation's result (concatenated over encoders).
 ROW_KEYS = ("records", "uncertainty", "error_tracking", "locality", "locality_views", "depth", "active", "rows")
 RESULTS = "results.json"
-# How a mask input shows in an encoder's name and table label (Table 1: "Ours w/ GT Mask", "Ours w/o Mask").
-MASK_VARIANTS = {"gt_mask": ("", "w/ GT Mask"), "none": ("-nomask", "w/o Mask")}
 
 
 @dataclass
@@ -110,129 +102,6 @@ class Settings:
                 f"got {list(self.depth_methods)}, {self.depth_size}, {self.depth_codes}"
             )
         check_active_settings(self)
-
-
-@dataclass
-class EncoderRun:
-    spec: P.EncoderSpec
-    predictor: Any
-    world: WorldIndex
-    reconstructor: Reconstructor
-    codes_dir: Path
-    keys: list = field(default_factory=list)
-    mask_input: str = "gt_mask"
-    only: tuple[str, ...] | None = None  # the protocols this variant runs (None: all asked for)
-
-
-def loss_name(predictor) -> str:
-    """es / nll / l2 from the loss `_target_` saved in the checkpoint's hyperparameters."""
-    target = str(predictor.model.hparams.loss.get("_target_", ""))
-    return LOSS_NAMES.get(target.rsplit(".", 1)[-1], target.rsplit(".", 1)[-1] or "unknown")
-
-
-def load_encoder(
-    run_dir: str | Path,
-    settings: Settings,
-    cache_dir: Path | None,
-    taken: set[str],
-    world_dir: str | Path | None = None,
-    temperature: bool = False,
-    opened: dict[Path, WorldIndex] | None = None,
-) -> EncoderRun:
-    """A run folder -> its predictor, world (run.json's, or world_dir), decoder and the test views to evaluate.
-
-    temperature=True scales the predicted variances by the temperatures stored beside the checkpoint
-    (latent, and SDF where one was fitted).
-    The world is checked (and a synthetic one repaired) by `open_world`, once per folder in `opened`.
-    """
-    from ushape.reconstruction.predictor import load_predictor, read_temperatures
-
-    predictor = load_predictor(run_dir)
-    if temperature and predictor.model.predicts_variance:  # FroDO* has no variance to scale
-        predictor.temperature, predictor.sdf_temperature = read_temperatures(predictor.checkpoint)
-    world_dir = world_dir or predictor.world
-    if world_dir is None:
-        raise FileNotFoundError(
-            f"{run_dir} has no run.json naming its data world (an unfinished run?): "
-            "pass the world folder with world=<outputs/data/synthetic/...>"
-        )
-    opened = {} if opened is None else opened
-    key = Path(world_dir).resolve()
-    world = opened[key] if key in opened else opened.setdefault(key, open_world(world_dir))
-    name = loss_name(predictor)
-    if name in taken:  # two runs with one loss: keep both, told apart by their folder
-        name = f"{name}:{Path(run_dir).name}"
-    taken.add(name)
-    spec = P.EncoderSpec(
-        name,
-        P.encoder_label(name.split(":")[0]) + name[len(name.split(":")[0]) :],
-        probabilistic=bool(predictor.model.predicts_variance),
-    )
-    decoder_dir = decoder_dir_of(predictor)
-    tag = f"{decoder_dir.resolve()}|{(decoder_dir / 'decoder.pt').stat().st_mtime_ns}"
-    reconstructor = Reconstructor(
-        predictor.decoder, tag, world, settings.resolution, cache_dir, n_points=settings.n_points, bf16=settings.bf16
-    )
-    ids = world.shape_ids(settings.split)[: settings.max_shapes]
-    return EncoderRun(spec, predictor, world, reconstructor, decoder_dir, test_views(world, settings.split, ids))
-
-
-def mask_variants(run: EncoderRun) -> list[EncoderRun]:
-    """The run once per mask input its world lists: the first keeps the encoder's name and runs every
-    protocol; the others run the single-view protocol under their own name. Labels say which is which
-    when there are several."""
-    inputs = list(run.world.config.get("mask_inputs", ["gt_mask"]))
-    unknown = [m for m in inputs if m not in MASK_INPUTS]
-    if unknown or not inputs:
-        raise ValueError(f"{run.world.root}: mask_inputs {inputs} must be some of {MASK_INPUTS}")
-    if len(inputs) == 1:
-        return [replace(run, mask_input=inputs[0])]
-    variants = []
-    for i, mask_input in enumerate(inputs):
-        suffix, label = MASK_VARIANTS[mask_input]
-        spec = P.EncoderSpec(
-            run.spec.name + ("" if i == 0 else suffix or f"-{mask_input}"),
-            f"{run.spec.label} {label}",
-            run.spec.probabilistic,
-        )
-        variants.append(replace(run, spec=spec, mask_input=mask_input, only=None if i == 0 else ("single_view",)))
-    return variants
-
-
-def split_codes(run: EncoderRun, settings: Settings, cache_dir: Path | None) -> CodeTable:
-    """The decoder's codes of the evaluated split: stage 1's own, or for shapes the decoder never saw
-    (another world), latent-optimised against it (DeepSDF's reconstruction, as stage 1 did for val/test)."""
-    table = load_codes(run.codes_dir / codes_file(settings.split))
-    ids = run.world.shape_ids(settings.split)
-    if set(ids) <= set(table.shape_ids):
-        return table
-    key = hashlib.sha1(
-        f"{run.reconstructor.decoder_tag}|{run.world.root.resolve()}|{settings.split}|"
-        f"{settings.code_iterations}".encode()
-    ).hexdigest()[:16]
-    cache = Path(cache_dir) / f"codes_{key}.pt" if cache_dir is not None else None
-    if cache is not None and cache.is_file():
-        return load_codes(cache)
-    log.info(
-        "latent-optimising the codes of %d %s shapes of %s against %s (%d iterations)",
-        len(ids),
-        settings.split,
-        run.world.root,
-        run.codes_dir,
-        settings.code_iterations,
-    )
-    shapes = SDFSamplesDataset(run.world.root, settings.split, samples_per_shape=2)  # optimise_codes draws its own
-    codes = optimise_codes(
-        run.predictor.decoder,
-        shapes,
-        iterations=settings.code_iterations,
-        lr_drop_at=settings.code_iterations // 2,
-        seed=settings.seed,
-    )
-    table = CodeTable(list(shapes.shape_ids), codes.detach().cpu())
-    if cache is not None:
-        save_codes(cache, table)
-    return table
 
 
 def evaluate_encoder(
