@@ -69,7 +69,8 @@ class CandidateViews:
         return np.round(2.0 * self.K[:, [1, 0], 2]).astype(np.int64)
 
     def azimuth_elevation(self) -> np.ndarray:
-        """[C, 2] degrees of each camera about the target, in R2N2's convention (azimuth from +x towards +z)."""
+        """[C, 2] degrees of each camera about the target in the object's frame, azimuth from +x towards +z
+        (R2N2's convention in its own axes; a ShapeNetCore.v2 world's frame is turned 90 degrees from it)."""
         d = self.directions
         azimuth = np.degrees(np.arctan2(d[:, 2], d[:, 0])) % 360.0
         elevation = np.degrees(np.arcsin(d[:, 1] / np.linalg.norm(d, axis=1)))

@@ -75,12 +75,15 @@ def sequence_figure(
 
 
 def _score_panel(ax, angles: np.ndarray, scores: np.ndarray, taken: list[int], chosen: int) -> None:
-    """Scores against azimuth, one line per elevation; taken views grey, the chosen one red."""
+    """Scores against azimuth, a line per elevation (one series where the elevations are scattered, as in
+    recorded views); taken views grey, the chosen one red."""
     finite = np.where(np.isfinite(scores), scores, np.nan)
-    for elevation in np.unique(np.round(angles[:, 1], 1)):
-        rows = np.flatnonzero(np.round(angles[:, 1], 1) == elevation)
+    levels = np.round(angles[:, 1], 1)
+    series = [levels == e for e in np.unique(levels)] if len(np.unique(levels)) <= 4 else [np.ones(len(levels), bool)]
+    for members in series:
+        rows = np.flatnonzero(members)
         rows = rows[np.argsort(angles[rows, 0])]
-        ax.plot(angles[rows, 0], finite[rows], marker=".", lw=0.8, label=f"el {elevation:g}")
+        ax.plot(angles[rows, 0], finite[rows], marker=".", lw=0.8)
     ax.scatter(angles[taken, 0], finite[taken], color="0.6", zorder=3, s=12)
     ax.scatter([angles[chosen, 0]], [finite[chosen]], color="red", zorder=4, s=18)
     ax.set_xlabel("azimuth (deg)", fontsize=7)
