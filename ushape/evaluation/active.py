@@ -89,7 +89,13 @@ def active_records(run, settings, codes: CodeTable) -> tuple[list[dict], list[di
             for name in settings.active_strategies:
                 strategy = build_strategy(name, settings.seed, true_code if name == "oracle" else None)
                 steps = active_reconstruction(
-                    candidates, encode, strategy, run.predictor.decoder, settings.active_views, start
+                    candidates,
+                    encode,
+                    strategy,
+                    run.predictor.decoder,
+                    settings.active_views,
+                    start,
+                    resolution=settings.resolution,
                 )
                 row = {"encoder": run.spec.name, "label": run.spec.label, "min_scale": float(scale), "method": name}
                 for k, step in enumerate(steps, start=1):
@@ -125,6 +131,7 @@ def save_active_sequence(run, settings, out_dir: Path, strategy: str = "uncertai
             run.predictor.decoder,
             settings.active_views,
             start,
+            resolution=settings.resolution,
         )
         surfaces = step_surfaces(steps, run.predictor.decoder, candidates, settings.resolution)
         angles = candidates.azimuth_elevation()
