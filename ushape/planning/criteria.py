@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from ushape.data.cameras import project
+from ushape.data.cameras import camera_centre, project
 from ushape.mesh.visibility import visible_points
 
 
@@ -41,8 +41,7 @@ def visible_from(
         pixels, depth = project(vertices, intrinsics, extrinsics)
         framed = (depth > 0) & (pixels[:, 0] >= 0) & (pixels[:, 0] < w) & (pixels[:, 1] >= 0) & (pixels[:, 1] < h)
         if framed.any():
-            centre = -extrinsics[:3, :3].T @ extrinsics[:3, 3]
-            seen[c, framed] = visible_points(mesh, vertices[framed], centre, tolerance)
+            seen[c, framed] = visible_points(mesh, vertices[framed], camera_centre(extrinsics), tolerance)
     return seen
 
 
