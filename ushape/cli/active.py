@@ -92,8 +92,7 @@ def run_active(args: argparse.Namespace) -> dict:
     shape_id = args.shape or (ids[0] if ids else None)
     if shape_id not in ids:
         raise ValueError(f"shape {shape_id!r} is not in the {args.split} split of {world.root}, e.g. {ids[:3]}")
-    orbit = {"n_azimuth": args.azimuths, "n_elevation": args.elevations} if args.candidates != "recorded" else {}
-    candidates = candidate_views(world, shape_id, args.candidates, **orbit)
+    candidates = candidate_views(world, shape_id, args.candidates, args.azimuths, args.elevations)
     start = start_view(args.seed, shape_id, len(candidates)) if args.start is None else args.start
     encode = ViewEncoder(predictor, candidates, args.min_scale, args.seed)
     strategy = build_strategy(args.strategy, args.seed)

@@ -54,14 +54,7 @@ def start_view(seed: int, shape_id: str, n_candidates: int) -> int:
 
 def shape_candidates(run, settings, shape_id: str):
     return candidate_views(
-        run.world,
-        shape_id,
-        settings.active_candidates,
-        **(
-            {"n_azimuth": settings.active_azimuths, "n_elevation": settings.active_elevations}
-            if settings.active_candidates != "recorded"
-            else {}
-        ),
+        run.world, shape_id, settings.active_candidates, settings.active_azimuths, settings.active_elevations
     )
 
 

@@ -158,13 +158,18 @@ def recorded_views(world: WorldIndex, shape_id: str) -> CandidateViews:
     )
 
 
-def candidate_views(world: WorldIndex, shape_id: str, source: str = "auto", **orbit) -> CandidateViews:
-    """Candidates from `source`: orbit, recorded, or auto (orbit where the world can render new views)."""
+def candidate_views(
+    world: WorldIndex, shape_id: str, source: str = "auto", n_azimuth: int = 12, n_elevation: int = 2
+) -> CandidateViews:
+    """Candidates from `source`: orbit, recorded, or auto (orbit where the world can render new views).
+    n_azimuth and n_elevation size the orbit; recorded views are what they are."""
     if source not in SOURCES:
         raise ValueError(f"candidate source must be one of {SOURCES}, got {source!r}")
     if source == "auto":
         source = "orbit" if can_render(world) else "recorded"
-    return orbit_views(world, shape_id, **orbit) if source == "orbit" else recorded_views(world, shape_id)
+    if source == "orbit":
+        return orbit_views(world, shape_id, n_azimuth, n_elevation)
+    return recorded_views(world, shape_id)
 
 
 def can_render(world: WorldIndex) -> bool:
