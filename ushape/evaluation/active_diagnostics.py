@@ -23,6 +23,7 @@ from ushape.encoder.latent_metrics import spearman_correlation
 from ushape.evaluation.tables import Table, encoder_order
 from ushape.fusion.rules import fuse_bayesian
 from ushape.planning import CandidateViews, Step
+from ushape.planning.strategies import distances_with_each
 from ushape.propagation.linearised import propagate_linearised
 
 
@@ -45,14 +46,12 @@ def decision_diagnostics(steps: Sequence[Step], encode, true_code: torch.Tensor,
             continue
         taken = [s.view for s in steps[:k]]
         open_views = [c for c in range(len(step.scores)) if c not in taken]
-        encoded = [encode(v) for v in taken]
-        base = float((before.mu - true_code).norm())
-        drops = []
-        for c in open_views:
-            mu, var = zip(*encoded, encode(c))
-            drops.append(base - float((fuse_bayesian(torch.stack(mu), torch.stack(var)).mu - true_code).norm()))
+        distances = distances_with_each(encode, fuse_bayesian, taken, len(step.scores), true_code)
+        drops = float((before.mu - true_code).norm()) - distances[open_views]
         correlation = (
-            float(spearman_correlation(torch.as_tensor(step.scores[open_views]), torch.tensor(drops)))
+            float(
+                spearman_correlation(torch.as_tensor(step.scores[open_views]), torch.tensor(drops, dtype=torch.float32))
+            )
             if len(open_views) > 1
             else math.nan
         )

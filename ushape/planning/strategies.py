@@ -18,7 +18,7 @@ import torch
 from torch import Tensor
 
 from ushape.planning.criteria import angular_gap, uncertain_surface, unseen_uncertain_surface
-from ushape.planning.loop import PlanState
+from ushape.planning.loop import Encode, Fusion, PlanState
 
 
 class FarthestView:
@@ -67,6 +67,21 @@ class UnseenUncertainSurface:
         return score if open_scores.size and open_scores.max() > 0 else FarthestView().scores(state)
 
 
+def distances_with_each(
+    encode: Encode, fusion: Fusion, taken: list[int], n_candidates: int, true_code: Tensor
+) -> np.ndarray:  # [C]
+    """Distance from the fused code of the views taken plus candidate c to true_code, per candidate (inf where
+    taken). It encodes every open candidate: only the oracle and the evaluation's diagnostics look this far."""
+    encoded = [encode(i) for i in taken]
+    distances = np.full(n_candidates, np.inf)
+    for c in range(n_candidates):
+        if c in taken:
+            continue
+        mu, var = zip(*encoded, encode(c))
+        distances[c] = float((fusion(torch.stack(mu), torch.stack(var)).mu - true_code).norm())
+    return distances
+
+
 class LatentOracle:
     """Minus the distance from the fused code (views taken plus the candidate) to the shape's own code."""
 
@@ -76,15 +91,7 @@ class LatentOracle:
         self.true_code = true_code.float()
 
     def scores(self, state: PlanState) -> np.ndarray:
-        taken = [state.encode(i) for i in state.taken]
-        scores = np.full(len(state.candidates), -np.inf)
-        for c in range(len(state.candidates)):
-            if c in state.taken:
-                continue
-            mu, var = zip(*taken, state.encode(c))
-            fused = state.fusion(torch.stack(mu), torch.stack(var))
-            scores[c] = -float((fused.mu - self.true_code).norm())
-        return scores
+        return -distances_with_each(state.encode, state.fusion, state.taken, len(state.candidates), self.true_code)
 
 
 STRATEGIES = {
