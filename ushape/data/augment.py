@@ -61,11 +61,16 @@ def read_image(path: str | Path) -> np.ndarray:
         raise ValueError(f"image {path} is corrupt or unreadable ({err}); re-render or delete it") from err
 
 
-def load_rgba(path: str | Path) -> Tensor:
-    """Read an image file as premultiplied RGBA float [4, H, W] in [0, 1] (opaque if it has no alpha)."""
-    rgba = torch.from_numpy(read_image(path)).permute(2, 0, 1).contiguous()
+def premultiply(straight: np.ndarray) -> Tensor:
+    """Straight RGBA float [H, W, 4] in [0, 1] -> premultiplied RGBA float [4, H, W]."""
+    rgba = torch.from_numpy(np.ascontiguousarray(straight, dtype=np.float32)).permute(2, 0, 1).contiguous()
     rgba[:3] *= rgba[3:]
     return rgba
+
+
+def load_rgba(path: str | Path) -> Tensor:
+    """Read an image file as premultiplied RGBA float [4, H, W] in [0, 1] (opaque if it has no alpha)."""
+    return premultiply(read_image(path))
 
 
 def _uniform(low: float, high: float, generator: torch.Generator | None) -> float:

@@ -19,11 +19,10 @@ from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 import numpy as np
-import torch
 import trimesh
 from torch import Tensor
 
-from ushape.data.augment import load_rgba
+from ushape.data.augment import load_rgba, premultiply
 from ushape.data.cameras import (
     DISTANCE_RATIO_RANGE,
     ELEVATION_RANGE,
@@ -105,13 +104,6 @@ def spread_elevations(n_elevation: int, span: Sequence[float] = ELEVATION_RANGE)
     return [float(e) for e in np.linspace(low, high, n_elevation)]
 
 
-def premultiplied(rgba: np.ndarray) -> Tensor:
-    """uint8 RGBA [H, W, 4] -> premultiplied float RGBA [4, H, W] in [0, 1] (as `load_rgba` reads a file)."""
-    image = torch.from_numpy(np.ascontiguousarray(rgba)).permute(2, 0, 1).float() / 255.0
-    image[:3] *= image[3:]
-    return image
-
-
 def orbit_views(
     world: WorldIndex,
     shape_id: str,
@@ -138,7 +130,7 @@ def orbit_views(
     def acquire(index: int) -> Tensor:
         if index not in rendered:
             rgba = render_mesh(caster, Ks[index], world_to_cams[index], world.image_size, colour)["rgba"]
-            rendered[index] = premultiplied(rgba)
+            rendered[index] = premultiply(rgba.astype(np.float32) / 255.0)
         return rendered[index].clone()
 
     return CandidateViews(shape_id, Ks, world_to_cams, centre, "orbit", acquire)
