@@ -26,9 +26,10 @@ from ushape import atomic
 from ushape.data.world import open_world
 from ushape.evaluation.active import start_view
 from ushape.evaluation.code_metrics import Reconstructor
+from ushape.evaluation.plots import save_figure
 from ushape.planning import ViewEncoder, active_reconstruction, build_strategy, candidate_views
 from ushape.planning.candidates import SOURCES
-from ushape.planning.figures import save_sequence, sequence_figure, step_surfaces
+from ushape.planning.figures import sequence_figure, step_surfaces
 from ushape.planning.strategies import STRATEGIES
 from ushape.reconstruction.export import write_mesh_files
 from ushape.reconstruction.predictor import load_predictor
@@ -98,12 +99,12 @@ def run_active(args: argparse.Namespace) -> dict:
     strategy = build_strategy(args.strategy, args.seed)
     steps = active_reconstruction(candidates, encode, strategy, predictor.decoder, args.views, start)
     out = Path(args.out) if args.out else DEFAULT_OUT / time.strftime("%Y-%m-%d_%H-%M-%S")
-    records = write_steps(steps, predictor.decoder, world, candidates, encode, args.resolution, out)
-    titles = [f"view {r['k']}: az {r['azimuth']:.0f}\nIoU {r['iou']:.3f}" for r in records]
+    surfaces = step_surfaces(steps, predictor.decoder, candidates, args.resolution)
+    records = write_steps(steps, surfaces, predictor.decoder, world, candidates, encode, args.resolution, out)
     heading = f"{args.strategy} strategy, {shape_id}, crops of area [{args.min_scale:g}, 1]"
-    surfaces = [r.pop("surface") for r in records]
     inputs = [encode.input(s.view) for s in steps]
-    save_sequence(sequence_figure(inputs, steps, surfaces, candidates, titles, heading), out / "sequence.png")
+    ious = [r["iou"] for r in records]
+    save_figure(sequence_figure(inputs, steps, surfaces, candidates, ious, heading), out / "sequence.png")
     summary = {
         "shape_id": shape_id,
         "world": str(world.root),
@@ -120,10 +121,11 @@ def run_active(args: argparse.Namespace) -> dict:
     return summary
 
 
-def write_steps(steps, decoder, world, candidates, encode: ViewEncoder, resolution: int, out: Path) -> list[dict]:
+def write_steps(
+    steps, surfaces, decoder, world, candidates, encode: ViewEncoder, resolution: int, out: Path
+) -> list[dict]:
     """Per step: the view as the encoder saw it (views/step_K.png), the mesh with its std (step_K.ply/.glb),
     and a record with the view's pose, the fused trace and the scores against the ground truth (NaN without it)."""
-    surfaces = step_surfaces(steps, decoder, candidates, resolution)
     scorer = Reconstructor(decoder, "active", world, resolution)
     has_truth = world.mesh_path(candidates.shape_id).is_file()
     angles = candidates.azimuth_elevation()
@@ -141,7 +143,6 @@ def write_steps(steps, decoder, world, candidates, encode: ViewEncoder, resoluti
             "trace": float(step.var.sum()),
             "iou": float(scores["iou"]),
             "cd": float(scores["cd"]),
-            "surface": surface,
         }
         if surface is not None:
             std = np.sqrt(np.maximum(surface.variance, 0.0))

@@ -22,10 +22,11 @@ from tqdm.auto import tqdm
 from ushape.decoder.artifacts import CodeTable
 from ushape.evaluation.active_diagnostics import decision_diagnostics, view_spread
 from ushape.evaluation.locality import has_cameras
+from ushape.evaluation.plots import save_figure
 from ushape.evaluation.tables import Table, encoder_order
 from ushape.planning import ViewEncoder, active_reconstruction, build_strategy, candidate_views
 from ushape.planning.candidates import SOURCES
-from ushape.planning.figures import save_sequence, sequence_figure, step_surfaces
+from ushape.planning.figures import sequence_figure, step_surfaces
 from ushape.planning.strategies import STRATEGIES
 
 log = logging.getLogger(__name__)
@@ -126,21 +127,15 @@ def save_active_sequence(run, settings, out_dir: Path, strategy: str = "uncertai
             start,
             resolution=settings.resolution,
         )
-        surfaces = step_surfaces(steps, run.predictor.decoder, candidates, settings.resolution)
-        angles = candidates.azimuth_elevation()
-        titles = []
-        for k, step in enumerate(steps, start=1):
-            iou = run.reconstructor.scores(step.mu, shape_id)["iou"]
-            titles.append(f"view {k}: az {angles[step.view, 0]:.0f}, el {angles[step.view, 1]:.0f}\nIoU {iou:.3f}")
         fig = sequence_figure(
             [encode.input(s.view) for s in steps],
             steps,
-            surfaces,
+            step_surfaces(steps, run.predictor.decoder, candidates, settings.resolution),
             candidates,
-            titles,
+            [run.reconstructor.scores(step.mu, shape_id)["iou"] for step in steps],
             f"{run.spec.label}, {strategy} strategy, {shape_id}, crops of area [{scale:g}, 1]",
         )
-        written.append(save_sequence(fig, out_dir / "plots" / f"active_sequence_{run.spec.name}_{scale:g}.png"))
+        written.append(save_figure(fig, out_dir / "plots" / f"active_sequence_{run.spec.name}_{scale:g}.png"))
     return written
 
 

@@ -3,7 +3,6 @@ its SDF std after fusing it, and the scores over the candidates that chose the n
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -38,10 +37,11 @@ def sequence_figure(
     steps: Sequence[Step],
     surfaces: Sequence[Surface | None],
     candidates: CandidateViews,
-    titles: Sequence[str],
+    ious: Sequence[float],  # per step, the fused code's IoU against the ground truth (NaN: none known)
     heading: str = "",
 ):
-    """A matplotlib Figure: rows = view taken, mesh coloured by std (one scale for all steps), next-view scores."""
+    """A matplotlib Figure: rows = view taken (titled with its pose and the IoU after it), mesh coloured by
+    std (one scale for all steps), next-view scores."""
     from matplotlib.figure import Figure
 
     n = len(steps)
@@ -52,7 +52,8 @@ def sequence_figure(
     angles = candidates.azimuth_elevation()
     for k in range(n):
         axes[0, k].imshow(inputs[k].permute(1, 2, 0).clamp(0, 1).numpy())
-        axes[0, k].set_title(titles[k], fontsize=8)
+        azimuth, elevation = angles[steps[k].view]
+        axes[0, k].set_title(f"view {k + 1}: az {azimuth:.0f}, el {elevation:.0f}\nIoU {ious[k]:.3f}", fontsize=8)
         surface = surfaces[k]
         if surface is not None:
             std = np.sqrt(np.maximum(surface.variance, 0))
@@ -88,13 +89,3 @@ def _score_panel(ax, angles: np.ndarray, scores: np.ndarray, taken: list[int], c
     ax.scatter([angles[chosen, 0]], [finite[chosen]], color="red", zorder=4, s=18)
     ax.set_xlabel("azimuth (deg)", fontsize=7)
     ax.tick_params(labelsize=6)
-
-
-def save_sequence(fig, path: str | Path) -> Path:
-    """Write the figure as a PNG, atomically."""
-    from ushape import atomic
-
-    path = Path(path)
-    with atomic.atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=110)
-    return path
