@@ -14,7 +14,7 @@ from ushape.reconstruction.predictor import (
     latest_run,
     load_predictor,
     pad_square,
-    read_temperature,
+    read_temperatures,
     temperature_path,
 )
 
@@ -105,7 +105,7 @@ def test_encode_gives_positive_variances_and_applies_temperature(tiny_run, predi
     atomic.write_json(path, {"temperature": 2.5})
     try:
         scaled = load_predictor(tiny_run["run"], temperature=True)
-        assert read_temperature(tiny_run["checkpoint"]) == 2.5
+        assert read_temperatures(tiny_run["checkpoint"]) == (2.5, None)  # no SDF temperature in this file
         mu2, var2 = scaled.encode(images)
         assert torch.allclose(mu2, mu) and torch.allclose(var2, 2.5 * var)
     finally:

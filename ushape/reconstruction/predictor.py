@@ -120,11 +120,6 @@ def read_temperatures(checkpoint: str | Path) -> tuple[float, float | None]:
     return float(record["temperature"]), None if sdf is None else float(sdf)
 
 
-def read_temperature(checkpoint: str | Path) -> float:
-    """The latent temperature stored beside a checkpoint by `fit_and_store_temperature`."""
-    return read_temperatures(checkpoint)[0]
-
-
 def run_config(run_dir: Path | None) -> dict:
     """The run's composed Hydra config as a plain dict ({} without a run folder)."""
     if run_dir is None or not (run_dir / HYDRA_CONFIG).is_file():
