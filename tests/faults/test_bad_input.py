@@ -3,7 +3,10 @@
 Each case was found by a fault probe of a fresh checkout, run as a new user would: Hydra's composition
 errors, and the data errors raised inside a Hydra job, came out as Hydra's text block (or a traceback)
 with exit code 1; a corrupt views.npz beside a render and a 15000 x 15000 PNG gave raw tracebacks.
-Every command here fails before any training; the files are tiny and synthetic.
+Every command here fails before any training; the files are tiny and synthetic. Those that load
+Lightning (a data error is met inside the job, a reconstruction loads the model) take 25-45 s each on
+a loaded 2-core machine and are marked slow (`pytest -m slow tests/faults`); the composition errors
+are answered before it is imported.
 """
 
 import json
@@ -21,7 +24,9 @@ from PIL import Image
 from repo_commands import run_command
 
 from ushape import atomic
+from ushape.data.augment import read_image
 from ushape.decoder.artifacts import DECODER_FILE, save_decoder
+from ushape.reconstruction.pipeline import view_camera
 
 TESTS = Path(__file__).resolve().parents[1]
 LATENT = 8  # the tiny_run fixture's code size
@@ -59,6 +64,7 @@ def test_an_unknown_option_or_key_is_one_line_with_the_choices(tmp_path, overrid
     assert files_under(tmp_path) == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "override, named",
     [
@@ -73,6 +79,7 @@ def test_a_bad_value_is_named_before_any_data_is_made(tmp_path, override, named)
     assert files_under(tmp_path) == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "layout, named",
     [
@@ -93,12 +100,14 @@ def test_a_shapenet_root_that_is_not_one_is_named(tmp_path, layout, named):
     assert not (tmp_path / "outputs" / "runs").exists() or files_under(tmp_path / "outputs" / "runs") == []
 
 
+@pytest.mark.slow
 def test_a_missing_data_root_says_to_give_it(tmp_path):
     """`data=shapenet` alone: OmegaConf's MissingMandatoryValue traceback."""
     line = error_line(run_command(tmp_path, "train.py", "data=shapenet", timeout=300))
     assert "data.root has no value" in line and "data.root=<value>" in line, line
 
 
+@pytest.mark.slow
 def test_pix3d_is_refused_for_training(tmp_path):
     """Pix3D has test shapes only: training preprocessed all of it, then failed on an empty train split."""
     root = tmp_path / "pix3d"
@@ -173,6 +182,7 @@ def good_image(path: Path) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_a_huge_image_alone_is_refused_by_name(ellipsoid_run, tmp_path):
     """Pillow's DecompressionBombError came out as a raw traceback with exit code 1."""
     huge = huge_png(tmp_path / "huge.png")
@@ -180,6 +190,7 @@ def test_a_huge_image_alone_is_refused_by_name(ellipsoid_run, tmp_path):
     assert f"image {huge} has more than 89,478,485 pixels" in line and "downscale it" in line, line
 
 
+@pytest.mark.slow
 def test_a_huge_image_beside_good_ones_is_skipped_and_they_go_on(ellipsoid_run, tmp_path):
     huge, good = huge_png(tmp_path / "huge.png"), good_image(tmp_path / "good.png")
     result = reconstruct(tmp_path, ellipsoid_run["run"], huge, good)
@@ -190,6 +201,7 @@ def test_a_huge_image_beside_good_ones_is_skipped_and_they_go_on(ellipsoid_run, 
     assert [s["image"] for s in summary["skipped"]] == [str(huge)]
 
 
+@pytest.mark.slow
 def test_a_render_with_a_corrupt_views_npz_is_reconstructed_from_the_canonical_camera(ellipsoid_run, tmp_path):
     """A truncated views.npz raised zipfile.BadZipFile; only the depth map needs the camera, so it is named
     in a warning and the view is traced from the canonical camera, as a photo is."""
@@ -203,3 +215,22 @@ def test_a_render_with_a_corrupt_views_npz_is_reconstructed_from_the_canonical_c
     assert "traced from the canonical camera instead" in result.stderr
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert [v["depth"]["camera"] for v in summary["views"]] == ["canonical"]
+
+
+def test_read_image_refuses_a_huge_image_by_name_without_decoding_it(tmp_path):
+    """In-process and fast: the limit check reads the header only (the 225-Mpx image is never decoded)."""
+    huge = huge_png(tmp_path / "huge.png")
+    with pytest.raises(ValueError, match=f"image {huge} has more than 89,478,485 pixels"):
+        read_image(huge)
+    over_the_warning = huge_png(tmp_path / "big.png", side=9500)  # Pillow only warns between 1x and 2x the limit
+    with pytest.raises(ValueError, match="downscale it"):
+        read_image(over_the_warning)
+
+
+def test_view_camera_falls_back_to_the_canonical_camera_for_a_corrupt_views_npz(tmp_path, caplog):
+    render = good_image(tmp_path / "00.png")
+    (tmp_path / "views.npz").write_bytes(b"PK\x03\x04 truncated")
+    with caplog.at_level("WARNING", logger="ushape.reconstruction.pipeline"):
+        K, w2c, kind = view_camera(render, 8)
+    assert kind == "canonical" and K.shape == (3, 3) and w2c.shape == (4, 4)
+    assert f"camera file {tmp_path / 'views.npz'} of {render} cannot be read" in caplog.text
