@@ -78,7 +78,11 @@ def _trainable_data(cfg: DictConfig) -> str | None:
     target = _select(cfg, "data._target_")
     if _select(cfg, "stage") is None or target is None:  # not a training config
         return None
-    if not getattr(get_class(target), "EVALUATION_ONLY", False):
+    try:
+        evaluation_only = getattr(get_class(target), "EVALUATION_ONLY", False)
+    except Exception:  # a target that does not import: instantiate names it, with its own error
+        return None
+    if not evaluation_only:
         return None
     name = HydraConfig.get().runtime.choices.get("data") if HydraConfig.initialized() else None
     return (
