@@ -1,11 +1,13 @@
 """Measure the real-mesh SDF signs: known-answer meshes, agreement with official voxels, time per mesh.
 
     ushape sign-bench --real-root ../shared/data/real_sample \
-        [--baseline old_mesh_sdf.py] [--samples 30000] [--timing-samples 250000] [--json out.json]
+        [--baseline old_mesh_sdf.py [--baseline-signs old_mesh_signs.py]] [--samples 30000] \
+        [--timing-samples 250000] [--json out.json]
 
 `--baseline` names another version of ushape/data/real/mesh_sdf.py (e.g. `git show <commit>:ushape/data/real/mesh_sdf.py
-> old.py`), measured on the same samples beside the current one. Prints markdown tables; the
-numbers measured for issue #18 are in docs/mesh_sdf_signs.md.
+> old.py`), measured on the same samples beside the current one; `--baseline-signs` the
+mesh_signs.py it imports, when that differs from the current one. Prints markdown tables; the
+measured numbers are in docs/mesh_sdf_signs.md.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import argparse
 import importlib.util
 import json
 import os
+import sys
 import time
 from pathlib import Path
 from types import ModuleType
@@ -32,18 +35,29 @@ TIMING_CHAIR = "ShapeNetCore.v2/03001627/1a6f615e8b1b5ae4dbbc9440457e303e/models
 TIMING_LARGE = "pix3d/model/chair/IKEA_IVAR/model.obj"
 
 
-def load_module(path: str | Path) -> ModuleType:
+def load_module(path: str | Path, signs: Optional[Path] = None) -> ModuleType:
+    """Another mesh_sdf.py as a module; with `signs`, its `ushape.data.real.mesh_signs` import gets that file."""
     spec = importlib.util.spec_from_file_location("baseline_mesh_sdf", path)
     module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    sys.modules[spec.name] = module  # dataclasses look their module up by name
+    name = "ushape.data.real.mesh_signs"
+    current = sys.modules.get(name)
+    try:
+        if signs is not None:
+            signs_spec = importlib.util.spec_from_file_location("baseline_mesh_signs", signs)
+            sys.modules[name] = sys.modules[signs_spec.name] = importlib.util.module_from_spec(signs_spec)
+            signs_spec.loader.exec_module(sys.modules[name])
+        spec.loader.exec_module(module)
+    finally:
+        if current is not None:
+            sys.modules[name] = current
     return module
 
 
-def inside_of(module: ModuleType, mesh, points: np.ndarray) -> np.ndarray:
-    """Bool [N] inside test of a mesh_sdf version, never rejecting (so every case gets a number)."""
-    if hasattr(module, "SignReport"):
-        return module.MeshSdf(mesh).inside(points)
-    return module.MeshSdf(mesh, max_ambiguous_fraction=1.0).inside(points)
+def inside_of(module: ModuleType, mesh, points: np.ndarray) -> tuple[np.ndarray, Any]:
+    """(bool [N] inside test of a mesh_sdf version, never rejecting (so every case gets a number), its MeshSdf)."""
+    sdf = module.MeshSdf(mesh) if hasattr(module, "SignReport") else module.MeshSdf(mesh, max_ambiguous_fraction=1.0)
+    return sdf.inside(points), sdf
 
 
 def known_answer_rows(methods: dict[str, ModuleType], n: int) -> list[dict[str, Any]]:
@@ -55,11 +69,10 @@ def known_answer_rows(methods: dict[str, ModuleType], n: int) -> list[dict[str, 
         away = np.sqrt(igl.point_mesh_squared_distance(points, vertices, faces)[0]) >= AWAY
         row: dict[str, Any] = {"case": case.name, "faces": len(faces), "samples away": int(away.sum())}
         for name, module in methods.items():
-            inside = inside_of(module, case.mesh, points)
+            inside, sdf = inside_of(module, case.mesh, points)
             row[name] = float(np.mean(inside[away] == case.solid(points[away]))) if case.solid else None
-        report = mesh_sdf.MeshSdf(case.mesh)
-        report.inside(points)
-        row.update(_report_columns(mesh_sdf.SignReport.of(report.signs)))
+            if module is mesh_sdf:
+                row.update(_report_columns(mesh_sdf.SignReport.of(sdf.signs)))
         rows.append(row)
     return rows
 
@@ -92,7 +105,7 @@ def real_rows(methods: dict[str, ModuleType], root: Path, n: int) -> list[dict[s
             rng = np.random.default_rng(0)
             start = time.perf_counter()
             try:
-                result = module.sample_mesh_sdf(mesh, n, rng)
+                result = module.sample_mesh_sdf(mesh, n, rng, min_inside_fraction=0.0, min_confidence=0.0)
             except module.MeshProcessingError as err:
                 row[method] = None
                 row[f"{method} rejected"] = str(err)
@@ -103,7 +116,7 @@ def real_rows(methods: dict[str, ModuleType], root: Path, n: int) -> list[dict[s
             checked, truth = tolerant_truth(occupancy, index_to_model, rows_xyz[:, :3] / scale + centre)
             row["checked"] = int(checked.sum())
             row[method] = float(np.mean((rows_xyz[checked, 3] < 0) == truth[checked]))
-            if report is not None:
+            if module is mesh_sdf:
                 row.update(_report_columns(report))
         rows.append(row)
     return rows
@@ -112,10 +125,10 @@ def real_rows(methods: dict[str, ModuleType], root: Path, n: int) -> list[dict[s
 def _report_columns(report) -> dict[str, Any]:
     return {
         "confidence": report.confidence,
-        "leak": report.leak,
-        "undecided": report.undecided,
-        "patches (closed/flipped/hidden)": f"{report.patches} ({report.closed_patches}/"
-        f"{report.flipped_patches}/{report.hidden_patches})",
+        "resolution agreement": report.resolution_agreement,
+        "winding agreement": report.winding_agreement,
+        "near": report.near,
+        "enclosed": report.enclosed,
     }
 
 
@@ -152,6 +165,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--real-root", type=Path, help="folder holding ShapeNetCore.v2/ and pix3d/model/")
     parser.add_argument("--baseline", type=Path, help="another mesh_sdf.py to measure beside the current one")
+    parser.add_argument("--baseline-signs", type=Path, help="the mesh_signs.py the baseline imports")
     parser.add_argument("--samples", type=int, default=30_000)
     parser.add_argument("--timing-samples", type=int, default=250_000)
     parser.add_argument("--repeats", type=int, default=2)
@@ -160,7 +174,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     args = parser.parse_args(argv)
     methods = {"current": mesh_sdf}
     if args.baseline:
-        methods["baseline"] = load_module(args.baseline)
+        methods["baseline"] = load_module(args.baseline, args.baseline_signs)
     results: dict[str, Any] = {"known answers": known_answer_rows(methods, args.samples)}
     print(f"## Known-answer meshes (share of right signs, samples >= {AWAY} from the surface)\n")
     print(markdown(results["known answers"]), flush=True)
