@@ -53,18 +53,17 @@ def surface_lattice(corners: np.ndarray, spacing: float):
     j = np.arange(len(face)) - np.repeat(first, n_slices)
     v = j / np.maximum(np.repeat(n_slices, n_slices) - 1, 1)
     n_along = np.ceil((1 - v) * base[face] / spacing).astype(np.int64) + 1
+    left = a[face] + v[:, None] * (c[face] - a[face])  # each slice's ends, then its step from left to right
+    step = (b[face] + v[:, None] * (c[face] - b[face]) - left) / np.maximum(n_along - 1, 1)[:, None]
     ends = np.cumsum(n_along)
     start = 0
     while start < len(face):
         stop = int(np.searchsorted(ends, ends[start] - n_along[start] + LATTICE_CHUNK, side="right"))
         stop = max(stop, start + 1)
         counts = n_along[start:stop]
-        s_face, s_v = np.repeat(face[start:stop], counts), np.repeat(v[start:stop], counts)
-        k = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-        u = k / np.maximum(np.repeat(counts, counts) - 1, 1)
-        left = a[s_face] + s_v[:, None] * (c[s_face] - a[s_face])
-        right = b[s_face] + s_v[:, None] * (c[s_face] - b[s_face])
-        yield left + u[:, None] * (right - left)
+        owner = np.repeat(np.arange(start, stop), counts)
+        k = np.arange(len(owner)) - np.repeat(np.cumsum(counts) - counts, counts)
+        yield left[owner] + k[:, None] * step[owner]
         start = stop
 
 
