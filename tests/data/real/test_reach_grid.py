@@ -61,3 +61,16 @@ def test_too_coarse_a_grid_is_refused():
     box = sign_cases.box_mesh(((0, 0, 0), (1, 1, 1)))
     with pytest.raises(ValueError, match="resolution must be at least"):
         ReachGrid.build(np.asarray(box.vertices), np.asarray(box.faces), 4)
+
+
+def test_a_coarsened_grid_seals_what_a_coarse_one_seals():
+    box = sign_cases.sealed_box_table().mesh
+    vertices, faces = np.asarray(box.vertices), np.asarray(box.faces)
+    pooled = ReachGrid.build(vertices, faces, 128).coarsened(4)
+    fresh = ReachGrid.build(vertices, faces, 32)
+    assert pooled.resolution == 32 and pooled.pitch == pytest.approx(fresh.pitch, rel=0.15)
+    points = np.random.default_rng(0).uniform(-0.8, 0.8, size=(5000, 3))
+    free_pooled, exterior_pooled = pooled.lookup(points)
+    free_fresh, exterior_fresh = fresh.lookup(points)
+    both = free_pooled & free_fresh
+    assert both.mean() > 0.5 and np.array_equal(exterior_pooled[both], exterior_fresh[both])

@@ -173,7 +173,10 @@ class MeshSigns:
         if len(self.faces) == 0:
             raise ValueError("the mesh has no non-degenerate faces")
         self.grid = ReachGrid.build(self.vertices, self.faces, resolution)
-        self.check_grid = ReachGrid.build(self.vertices, self.faces, check_resolution)
+        if resolution % check_resolution == 0:  # pooling the fine marks spares a second lattice
+            self.check_grid = self.grid.coarsened(resolution // check_resolution)
+        else:
+            self.check_grid = ReachGrid.build(self.vertices, self.faces, check_resolution)
         self._segments = SegmentTest(self.vertices, self.faces)
         self.tally = SignTally()
 

@@ -90,6 +90,8 @@ class ReachGrid:
     exterior: np.ndarray  # bool [X,Y,Z]: unmarked and reached by the fill from the boundary
     free: np.ndarray  # bool [X,Y,Z]: no mark in its 3x3x3 block, so no triangle touches it
 
+    marked: np.ndarray  # bool [X,Y,Z]: holds a lattice point of the surface
+
     @classmethod
     def build(cls, vertices: np.ndarray, faces: np.ndarray, resolution: int = 256) -> "ReachGrid":
         """Grid of `resolution` voxels along the longest side of the mesh's bounding box (fewer along the others)."""
@@ -104,9 +106,25 @@ class ReachGrid:
         for points in surface_lattice(corners, LATTICE_SPACING * pitch):
             index = np.floor((points - origin) / pitch).astype(np.int64)
             marked[tuple(np.clip(index, 0, shape - 1).T)] = True
+        return cls.of_marks(marked, origin, pitch, resolution)
+
+    @classmethod
+    def of_marks(cls, marked: np.ndarray, origin: np.ndarray, pitch: float, resolution: int) -> "ReachGrid":
+        """The grid of surface marks [X,Y,Z] whose boundary voxels are unmarked: the fill and the free voxels."""
         exterior = ~fill_voids.fill(marked, in_place=False)
         free = ~box_dilation(marked)
-        return cls(resolution=resolution, origin=origin, pitch=pitch, exterior=exterior, free=free)
+        return cls(resolution=resolution, origin=origin, pitch=pitch, exterior=exterior, free=free, marked=marked)
+
+    def coarsened(self, factor: int) -> "ReachGrid":
+        """The grid with voxels `factor` times as large: marked where any of its fine voxels is (the same lattice)."""
+        if factor == 1:
+            return self
+        shape = -(-np.array(self.marked.shape) // factor)
+        fine = np.zeros(tuple(shape * factor), bool)
+        fine[tuple(slice(0, n) for n in self.marked.shape)] = self.marked
+        coarse = fine.reshape(shape[0], factor, shape[1], factor, shape[2], factor).any(axis=(1, 3, 5))
+        pitch = self.pitch * factor
+        return ReachGrid.of_marks(np.pad(coarse, 1), self.origin - pitch, pitch, -(-self.resolution // factor))
 
     def index(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(voxel index [N,3] clipped to the grid, in_grid [N]) of points [N,3]."""
