@@ -47,7 +47,7 @@ def union_of_closed_boxes(boxes: list[Box]) -> trimesh.Trimesh:
 
 
 def cabinet() -> SignCase:
-    """Four deep cubbies open at the front, every panel a closed box (as the issue's 22-part shelf unit)."""
+    """Four deep cubbies open at the front, every panel a closed box (like a real 22-part shelf unit)."""
     t = 0.05
     boxes = [
         ((-0.6, -0.7, -0.5), (-0.6 + t, 0.7, 0.5)),
