@@ -25,7 +25,7 @@ from typing import Any, Optional
 import igl
 import numpy as np
 
-from ushape.data.real import mesh_sdf, sign_cases
+from ushape.data.real import mesh_sdf, mesh_signs, sign_cases
 from ushape.data.real.pix3d import load_voxels, voxel_to_model
 from ushape.data.real.voxel_check import has_interior, read_solid_binvox, tolerant_truth
 from ushape.data.sampling import sample_points
@@ -54,23 +54,33 @@ def load_module(path: str | Path, signs: Optional[Path] = None) -> ModuleType:
     return module
 
 
-def inside_of(module: ModuleType, mesh, points: np.ndarray) -> tuple[np.ndarray, Any]:
-    """(bool [N] inside test of a mesh_sdf version, never rejecting (so every case gets a number), its MeshSdf)."""
-    sdf = module.MeshSdf(mesh) if hasattr(module, "SignReport") else module.MeshSdf(mesh, max_ambiguous_fraction=1.0)
+def inside_of(module: ModuleType, mesh, points: np.ndarray, options: dict) -> tuple[np.ndarray, Any]:
+    """(bool [N] inside test of a mesh_sdf version, never rejecting (so every case gets a number), its MeshSdf).
+
+    `options` (MeshSigns settings such as the resolution) go to the current version only."""
+    if module is mesh_sdf:
+        sdf = module.MeshSdf(mesh, **options)
+    elif hasattr(module, "SignReport"):
+        sdf = module.MeshSdf(mesh)
+    else:
+        sdf = module.MeshSdf(mesh, max_ambiguous_fraction=1.0)
     return sdf.inside(points), sdf
 
 
-def known_answer_rows(methods: dict[str, ModuleType], n: int) -> list[dict[str, Any]]:
+def known_answer_rows(methods: dict[str, ModuleType], n: int, options: dict) -> list[dict[str, Any]]:
+    """Per known-answer mesh: share of right signs away from the surface, and near it (1e-4 to AWAY)."""
     rows = []
     for make in sign_cases.KNOWN_ANSWER_CASES + (sign_cases.open_box,):
         case = make()
         points = sample_points(case.mesh, n, np.random.default_rng(0))
         vertices, faces = np.asarray(case.mesh.vertices, np.float64), np.asarray(case.mesh.faces, np.int64)
-        away = np.sqrt(igl.point_mesh_squared_distance(points, vertices, faces)[0]) >= AWAY
+        distance = np.sqrt(igl.point_mesh_squared_distance(points, vertices, faces)[0])
+        away, near = distance >= AWAY, (distance > 1e-4) & (distance < AWAY)
         row: dict[str, Any] = {"case": case.name, "faces": len(faces), "samples away": int(away.sum())}
         for name, module in methods.items():
-            inside, sdf = inside_of(module, case.mesh, points)
+            inside, sdf = inside_of(module, case.mesh, points, options)
             row[name] = float(np.mean(inside[away] == case.solid(points[away]))) if case.solid else None
+            row[f"{name} near"] = float(np.mean(inside[near] == case.solid(points[near]))) if case.solid else None
             if module is mesh_sdf:
                 row.update(_report_columns(mesh_sdf.SignReport.of(sdf.signs)))
         rows.append(row)
@@ -90,7 +100,7 @@ def real_models(root: Path) -> list[tuple[str, Path, Path]]:
     return [f for f in found if f[2].is_file()]
 
 
-def real_rows(methods: dict[str, ModuleType], root: Path, n: int) -> list[dict[str, Any]]:
+def real_rows(methods: dict[str, ModuleType], root: Path, n: int, options: dict) -> list[dict[str, Any]]:
     rows = []
     for name, model, voxels in real_models(root):
         raw = mesh_sdf.load_mesh(model)
@@ -105,7 +115,8 @@ def real_rows(methods: dict[str, ModuleType], root: Path, n: int) -> list[dict[s
             rng = np.random.default_rng(0)
             start = time.perf_counter()
             try:
-                result = module.sample_mesh_sdf(mesh, n, rng, min_inside_fraction=0.0, min_confidence=0.0)
+                extra = options if module is mesh_sdf else {}
+                result = module.sample_mesh_sdf(mesh, n, rng, min_inside_fraction=0.0, min_confidence=0.0, **extra)
             except module.MeshProcessingError as err:
                 row[method] = None
                 row[f"{method} rejected"] = str(err)
@@ -167,6 +178,8 @@ def main(argv: Optional[list[str]] = None) -> int:
     parser.add_argument("--baseline", type=Path, help="another mesh_sdf.py to measure beside the current one")
     parser.add_argument("--baseline-signs", type=Path, help="the mesh_signs.py the baseline imports")
     parser.add_argument("--samples", type=int, default=30_000)
+    parser.add_argument("--resolution", type=int, default=mesh_signs.RESOLUTION, help="the current method's grid")
+    parser.add_argument("--check-resolution", type=int, default=mesh_signs.CHECK_RESOLUTION)
     parser.add_argument("--timing-samples", type=int, default=250_000)
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--no-timing", action="store_true")
@@ -175,11 +188,12 @@ def main(argv: Optional[list[str]] = None) -> int:
     methods = {"current": mesh_sdf}
     if args.baseline:
         methods["baseline"] = load_module(args.baseline, args.baseline_signs)
-    results: dict[str, Any] = {"known answers": known_answer_rows(methods, args.samples)}
-    print(f"## Known-answer meshes (share of right signs, samples >= {AWAY} from the surface)\n")
+    options = {"resolution": args.resolution, "check_resolution": args.check_resolution}
+    results: dict[str, Any] = {"known answers": known_answer_rows(methods, args.samples, options)}
+    print(f"## Known-answer meshes (share of right signs, samples >= {AWAY} from the surface; near: 1e-4 to {AWAY})\n")
     print(markdown(results["known answers"]), flush=True)
     if args.real_root:
-        results["real models"] = real_rows(methods, args.real_root, args.samples)
+        results["real models"] = real_rows(methods, args.real_root, args.samples, options)
         print("\n## Real models against official voxels (tolerant check)\n")
         print(markdown(results["real models"]), flush=True)
         if not args.no_timing:
