@@ -1,0 +1,56 @@
+"""Protocols as plug-ins: one from the tests folder runs through eval.py beside the paper's and adds its table."""
+
+import csv
+import json
+import warnings
+from pathlib import Path
+
+import pytest
+from eval_world import fit_sphere_run
+from hydra import compose, initialize_config_dir
+
+from ushape.evaluation.command import run_eval
+from ushape.evaluation.plugin import available, load_protocols
+from ushape.evaluation.settings import PAPER_PROTOCOLS, Settings
+
+CONF = str(Path(__file__).resolve().parents[2] / "conf")
+TOY = Path(__file__).resolve().parent / "toy_protocols"
+
+
+def test_every_protocol_is_a_yaml_file_that_builds_its_class():
+    names = sorted(available())
+    assert names == sorted([*PAPER_PROTOCOLS, "active"])
+    assert [p.name for p in load_protocols(names, Settings())] == names
+    with pytest.raises(ValueError, match=r"unknown protocols \['toy'\].*protocol_dirs"):
+        load_protocols(["toy"], Settings())
+    (toy,) = load_protocols(["toy"], Settings(), [TOY])
+    assert toy.weight == 0.5
+
+
+def test_a_protocol_from_the_tests_folder_runs_through_eval_and_writes_its_table(sphere_world, tmp_path, monkeypatch):
+    monkeypatch.setenv("USHAPE_ROOT", str(tmp_path))
+    run_dir = fit_sphere_run(sphere_world, tmp_path)
+    out = tmp_path / "eval"
+    overrides = [
+        f"runs=[{run_dir}]",
+        f"cache_dir={tmp_path / 'cache'}",
+        f"out_dir={out}",
+        "tensorboard=false",
+        "protocols=[single_view,toy]",
+        f"protocol_dirs=[{TOY}]",
+        "protocol.resolution=24",
+        "protocol.n_points=128",
+        "protocol.single_view_views=2",
+        "protocol.showcase_shapes=0",
+    ]
+    with initialize_config_dir(CONF, version_base="1.3"):
+        cfg = compose("eval", overrides=overrides)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run_eval(cfg)
+    assert "### Table T: toy" in (out / "tables.md").read_text()
+    with open(out / "tablet.csv") as f:
+        (row,) = list(csv.DictReader(f))
+    assert row == {"encoder": "nll", "views": "4", "weighted": "2.0"}  # 2 shapes x 2 views, weight 0.5
+    records = json.loads((out / "results.json").read_text())["records"]
+    assert sum(r["protocol"] == "single" for r in records) == 4  # asked by both protocols, scored once
