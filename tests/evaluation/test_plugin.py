@@ -27,7 +27,9 @@ def test_every_protocol_is_a_yaml_file_that_builds_its_class():
     assert toy.weight == 0.5
 
 
-def test_a_protocol_from_the_tests_folder_runs_through_eval_and_writes_its_table(sphere_world, tmp_path, monkeypatch):
+def test_a_protocol_and_a_method_from_the_tests_folder_run_through_eval_and_write_their_rows(
+    sphere_world, tmp_path, monkeypatch
+):
     monkeypatch.setenv("USHAPE_ROOT", str(tmp_path))
     run_dir = fit_sphere_run(sphere_world, tmp_path)
     out = tmp_path / "eval"
@@ -42,6 +44,7 @@ def test_a_protocol_from_the_tests_folder_runs_through_eval_and_writes_its_table
         "protocol.n_points=128",
         "protocol.single_view_views=2",
         "protocol.showcase_shapes=0",
+        "methods=[{_target_:toy_method.Same}]",
     ]
     with initialize_config_dir(CONF, version_base="1.3"):
         cfg = compose("eval", overrides=overrides)
@@ -50,7 +53,13 @@ def test_a_protocol_from_the_tests_folder_runs_through_eval_and_writes_its_table
         run_eval(cfg)
     assert "### Table T: toy" in (out / "tables.md").read_text()
     with open(out / "tablet.csv") as f:
-        (row,) = list(csv.DictReader(f))
-    assert row == {"encoder": "nll", "views": "4", "weighted": "2.0"}  # 2 shapes x 2 views, weight 0.5
-    records = json.loads((out / "results.json").read_text())["records"]
-    assert sum(r["protocol"] == "single" for r in records) == 4  # asked by both protocols, scored once
+        rows = list(csv.DictReader(f))
+    assert rows == [  # 2 shapes x 2 views, weight 0.5; the method's row beside the encoder's
+        {"encoder": "nll", "views": "4", "weighted": "2.0"},
+        {"encoder": "nll+same", "views": "4", "weighted": "2.0"},
+    ]
+    result = json.loads((out / "results.json").read_text())
+    single = [r for r in result["records"] if r["protocol"] == "single"]
+    assert [sum(r["encoder"] == e for r in single) for e in ("nll", "nll+same")] == [4, 4]  # asked twice, scored once
+    assert [r["iou"] for r in single[:4]] == [r["iou"] for r in single[4:]]  # the same codes, the same scores
+    assert result["runs"]["nll+same"]["run_dir"] == str(run_dir)

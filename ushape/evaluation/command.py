@@ -119,6 +119,7 @@ def _evaluate(cfg: DictConfig) -> float | None:
         showcase_dir=out_dir if settings.protocols else None,
         temperature=bool(cfg.get("temperature", False)),
         protocols=protocols,
+        methods=[instantiate(node) for node in cfg.get("methods") or []],
     )
     paths = write_results(result, out_dir, tensorboard=cfg.tensorboard)
     if "tables" in paths:

@@ -98,6 +98,7 @@ def evaluate_runs(
     showcase_dir: Path | None = None,
     temperature: bool = False,
     protocols: Sequence[Protocol] | None = None,
+    methods: Sequence[ReconstructionMethod] = (),
 ) -> dict[str, Any]:
     """Load every run folder's encoder and evaluate them all (see `evaluate_all`)."""
     if not run_dirs:
@@ -106,9 +107,11 @@ def evaluate_runs(
     opened: dict[Path, WorldIndex] = {}
     runs = [load_encoder(run_dir, settings, cache_dir, taken, world_dir, temperature, opened) for run_dir in run_dirs]
     variants = [(variant, run_dir) for run, run_dir in zip(runs, run_dirs) for variant in mask_variants(run)]
-    result = evaluate_all([v for v, _ in variants], settings, cache_dir, setting, showcase_dir, protocols)
+    result = evaluate_all([v for v, _ in variants], settings, cache_dir, setting, showcase_dir, protocols, methods)
     for run, run_dir in variants:
-        result["runs"][run.spec.name]["run_dir"] = str(run_dir)
+        for method in [None, *methods]:
+            name = run.spec.name if method is None else f"{run.spec.name}+{method.name}"
+            result["runs"][name]["run_dir"] = str(run_dir)
     return result
 
 

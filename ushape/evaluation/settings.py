@@ -1,7 +1,7 @@
 """What an evaluation measures and how finely: the size preset of conf/protocol/ (paper, quick) as one
 dataclass, and the names of the files an evaluation writes.
 
-The values are shared by the protocols (conf/protocol/plugins/<name>.yaml names the ones each reads), so
+The values are shared by the protocols (conf/protocol/plugins/<name>.yaml binds the ones each reads), so
 `eval.py protocol=paper` and `protocol.<key>=...` size every protocol at once; results.json records them.
 """
 

@@ -12,7 +12,13 @@ from ushape.evaluation.plugin import Output, Protocol
 
 
 class Corrupted(Protocol):
+    """scales: Table 4's crop min scales; k: its Bayesian-K. The Easy/Mid/Hard scales are the
+    preset's single_view_scales, which the uncertainty protocol's Table U shares."""
+
     name = "corrupted"
+
+    def __init__(self, scales=(0.8, 0.4, 0.2, 0.1, 0.01), k: int = 4) -> None:
+        self.scales, self.k = list(scales), k
 
     def run(self, context) -> Output:
         settings = context.settings
@@ -20,8 +26,8 @@ class Corrupted(Protocol):
             context.single_view(scale)
         if context.asked("multi_view"):
             context.output("multi_view")
-        methods = P.fusion_methods(context.spec.probabilistic, [settings.table4_k])
-        for scale in dict.fromkeys([*settings.corrupted_scales, *settings.single_view_scales]):
+        methods = P.fusion_methods(context.spec.probabilistic, [self.k])
+        for scale in dict.fromkeys([*self.scales, *settings.single_view_scales]):
             if scale != 1.0 or not context.asked("multi_view"):
                 context.multi_view(scale, methods)
         return Output()

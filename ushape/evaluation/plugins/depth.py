@@ -13,7 +13,15 @@ log = logging.getLogger(__name__)
 
 
 class Depth(Protocol):
+    """size: depth-map pixels per side; views: each shape's first views (None: all); methods: implicit
+    and/or mc; codes: Monte Carlo codes traced; steps: sphere-tracing steps per ray."""
+
     name = "depth"
+
+    def __init__(
+        self, size: int = 48, views: int | None = 2, methods=("implicit", "mc"), codes: int = 10, steps: int = 50
+    ) -> None:
+        self.size, self.views, self.methods, self.codes, self.steps = size, views, list(methods), codes, steps
 
     def run(self, context) -> Output:
         run, settings = context.run, context.settings
@@ -25,11 +33,11 @@ class Depth(Protocol):
             context.encode(1.0),
             run.predictor.decoder,
             run.world,
-            settings.depth_size,
-            settings.depth_methods,
-            settings.depth_codes,
-            settings.depth_steps,
-            settings.depth_views,
+            self.size,
+            self.methods,
+            self.codes,
+            self.steps,
+            self.views,
             settings.calibration_levels,
             settings.seed,
         )

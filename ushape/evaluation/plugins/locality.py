@@ -11,7 +11,13 @@ log = logging.getLogger(__name__)
 
 
 class Locality(Protocol):
+    """points: ground-truth surface points per shape; scale: the crops' min area; views: each shape's
+    first views only (None: all)."""
+
     name = "locality"
+
+    def __init__(self, points: int = 2048, scale: float = 0.1, views: int | None = None) -> None:
+        self.points, self.scale, self.views = points, scale, views
 
     def run(self, context) -> Output:
         run, settings = context.run, context.settings
@@ -22,7 +28,7 @@ class Locality(Protocol):
                 run.world.root,
             )
             return Output()
-        scale = settings.locality_scale
+        scale = self.scale
         views = locality_records(
             run.spec,
             context.encode(1.0),
@@ -31,7 +37,7 @@ class Locality(Protocol):
             run.world,
             scale,
             settings.seed,
-            settings.locality_points,
-            settings.locality_views,
+            self.points,
+            self.views,
         )
         return Output(rows={"locality_views": views, "locality": summarise_locality(views)})

@@ -18,7 +18,15 @@ SHAPE_PROTOCOLS = ("single_view", "corrupted")  # whose single-view records give
 
 
 class Uncertainty(Protocol):
+    """sdf_points: ground-truth SDF samples per view; mc_samples: Monte Carlo codes per prediction;
+    sdf_views: each shape's first views (None: all); sdf_clamp: the decoder's training clamp."""
+
     name = "uncertainty"
+
+    def __init__(
+        self, sdf_points: int = 1024, mc_samples: int = 10, sdf_views: int | None = None, sdf_clamp: float | None = 0.1
+    ) -> None:
+        self.sdf_points, self.mc_samples, self.sdf_views, self.sdf_clamp = sdf_points, mc_samples, sdf_views, sdf_clamp
 
     def run(self, context) -> Output:
         run, settings = context.run, context.settings
@@ -29,10 +37,10 @@ class Uncertainty(Protocol):
             encodings,
             run.predictor.decoder,
             run.world,
-            settings.sdf_points,
-            settings.mc_samples,
-            settings.sdf_clamp,
-            settings.sdf_views,
+            self.sdf_points,
+            self.mc_samples,
+            self.sdf_clamp,
+            self.sdf_views,
             settings.calibration_levels,
             sdf_temperature=run.predictor.sdf_temperature,
         )
