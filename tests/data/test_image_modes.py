@@ -1,4 +1,4 @@
-"""Images of every mode Pillow reads come in with their real content, or are refused by name (issue 15.1)."""
+"""Images of every mode Pillow reads come in with their real content, or are refused by name."""
 
 import numpy as np
 import pytest

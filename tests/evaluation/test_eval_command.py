@@ -8,7 +8,7 @@ from eval_world import fit_sphere_run
 from hydra import compose, initialize_config_dir
 
 from ushape.evaluation.command import configured_setting, protocols_for, run_eval
-from ushape.evaluation.runner import PAPER_PROTOCOLS
+from ushape.evaluation.settings import PAPER_PROTOCOLS
 
 CONF = str(__import__("pathlib").Path(__file__).resolve().parents[2] / "conf")
 

@@ -20,8 +20,9 @@ PAPER_A100_S = {
     "field uncertainty mc M=10": 5.45,
     "fusion bayesian": 0.1e-3,
 }
-# Issue 16's targets: the full-grid linearised field within 2.2x the plain field (one backward costs
-# about one forward, so 2x is the floor), the narrow band within 0.2x of it, depth uncertainty by
+# The computation targets (docs/benchmark.md), set so that uncertainty costs about what a plain mesh does:
+# the full-grid linearised field within 2.2x the plain field (one backward costs about one forward, so 2x
+# is the floor), the narrow band within 0.2x of it, depth uncertainty by
 # implicit differentiation 10x faster than sphere tracing M = 10 codes.
 FIELD_TARGET, BAND_TARGET, DEPTH_SPEEDUP_TARGET = 2.2, 0.2, 10.0
 MESH_TARGET, FUSION_TARGET_S = 1.10, 0.1e-3

@@ -11,8 +11,10 @@ from omegaconf import DictConfig, OmegaConf
 
 from ushape.builders import build
 from ushape.errors import bad_input_exit
+from ushape.evaluation.plugin import load_protocols
 from ushape.evaluation.report import write_results
-from ushape.evaluation.runner import PAPER_PROTOCOLS, Settings, evaluate_runs
+from ushape.evaluation.runner import evaluate_runs
+from ushape.evaluation.settings import PAPER_PROTOCOLS, Settings
 from ushape.evaluation.sources import resolve_runs
 from ushape.training.summary import discard_if_bookkeeping_only
 from ushape.training.validation import check_config
@@ -102,6 +104,7 @@ def _evaluate(cfg: DictConfig) -> float | None:
         print(markdown.read_text())
         return None
     settings = build(cfg.protocol, Settings, protocols=protocols_for(cfg.protocols, _multirun()))
+    protocols = load_protocols(settings.protocols, settings, list(cfg.get("protocol_dirs") or []))
     given = cfg.get("runs") or cfg.get("sweep")
     runs = resolve_runs(cfg.get("runs"), cfg.get("sweep"), "." if given else cfg.paths.root_dir)
     out_dir = Path(cfg.out_dir) if cfg.get("out_dir") else default_out_dir(runs)
@@ -115,6 +118,8 @@ def _evaluate(cfg: DictConfig) -> float | None:
         world_dir=world_dir,
         showcase_dir=out_dir if settings.protocols else None,
         temperature=bool(cfg.get("temperature", False)),
+        protocols=protocols,
+        methods=[instantiate(node) for node in cfg.get("methods") or []],
     )
     paths = write_results(result, out_dir, tensorboard=cfg.tensorboard)
     if "tables" in paths:

@@ -21,7 +21,7 @@ from ushape.evaluation.uncertainty_protocol import decoder_dir_of
 from ushape.evaluation.views import MASK_INPUTS, test_views
 
 if TYPE_CHECKING:
-    from ushape.evaluation.runner import Settings
+    from ushape.evaluation.settings import Settings
 
 log = logging.getLogger(__name__)
 
@@ -40,6 +40,7 @@ class EncoderRun:
     keys: list = field(default_factory=list)
     mask_input: str = "gt_mask"
     only: tuple[str, ...] | None = None  # the protocols this variant runs (None: all asked for)
+    method: Any = None  # a methods.ReconstructionMethod scoring its own Gaussians (None: the encoder's)
 
 
 def loss_name(predictor) -> str:

@@ -21,7 +21,7 @@ from typing import Any, Sequence
 from ushape import atomic
 from ushape.evaluation import active, plots, tables
 from ushape.evaluation.active_diagnostics import table_active_why
-from ushape.evaluation.runner import RESULT_ROW, RESULTS
+from ushape.evaluation.settings import RESULT_ROW, RESULTS
 
 PLOTS_DIR = "plots"
 
@@ -58,6 +58,7 @@ def build_tables(result: dict[str, Any]) -> list[tables.Table]:
         built += [active.table_active(result["records"], metric) for metric in active.METRICS]
     if result.get("active"):
         built.append(table_active_why(result["active"]))
+    built += [tables.Table(**table) for table in result.get("tables", [])]  # a plug-in protocol's own
     return [t for t in built if t.rows]
 
 

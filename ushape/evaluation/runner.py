@@ -17,198 +17,52 @@ import json
 import logging
 import math
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from ushape.data.layout import WorldIndex
-from ushape.decoder.artifacts import codes_file, load_codes
 from ushape.evaluation import protocols as P
-from ushape.evaluation.active import active_records, check_active_settings, save_active_sequence
-from ushape.evaluation.depth_calibration import depth_calibration_rows
-from ushape.evaluation.encoders import EncoderRun, load_encoder, mask_variants, split_codes
-from ushape.evaluation.locality import has_cameras, locality_records, summarise_locality
+from ushape.evaluation.context import EvalContext
+from ushape.evaluation.encoders import EncoderRun, load_encoder, mask_variants
+from ushape.evaluation.methods import ReconstructionMethod, method_variants
+from ushape.evaluation.plugin import Protocol, load_protocols
+from ushape.evaluation.settings import RESULTS, ROW_KEYS, Settings
 from ushape.evaluation.showcase import save_showcase
-from ushape.evaluation.uncertainty_protocol import (
-    curves_to_json,
-    error_tracking_row,
-    latent_rows,
-    pooled_error_tracking_row,
-    sdf_rows,
-    with_shape_accuracy,
-)
 from ushape.evaluation.views import encode_views
-from ushape.propagation import SDF_CLAMP
-from ushape.reconstruction.depth_implicit import DEPTH_METHODS
 
 log = logging.getLogger(__name__)
 
-PAPER_PROTOCOLS = ("single_view", "multi_view", "corrupted", "uncertainty", "locality", "depth")
-PROTOCOLS = (*PAPER_PROTOCOLS, "active")  # active: next-best-view (evaluation/active.py), asked for by name
-RESULT_ROW = "eval_row.json"
-# The row lists every encoder contributes to an evaluation's result (concatenated over encoders).
-ROW_KEYS = ("records", "uncertainty", "error_tracking", "locality", "locality_views", "depth", "active", "rows")
-RESULTS = "results.json"
-
-
-@dataclass
-class Settings:
-    """What to evaluate and how finely (conf/eval.yaml's `settings`)."""
-
-    split: str = "test"
-    group_size: int = P.GROUP_SIZE
-    table4_k: int = 4
-    resolution: int = 64
-    n_points: int = 1024
-    bf16: bool = False
-    single_view_scales: Sequence[float] = (1.0, 0.1, 0.01)
-    single_view_views: int | None = None
-    corrupted_scales: Sequence[float] = (0.8, 0.4, 0.2, 0.1, 0.01)
-    sdf_points: int = 1024
-    mc_samples: int = 10
-    sdf_views: int | None = None
-    sdf_clamp: float | None = SDF_CLAMP
-    calibration_levels: int = 20
-    locality_points: int = 2048
-    locality_scale: float = 0.1
-    locality_views: int | None = None
-    depth_size: int = 48
-    depth_views: int | None = 2
-    depth_methods: Sequence[str] = ("implicit", "mc")
-    depth_codes: int = 10
-    depth_steps: int = 50
-    max_shapes: int | None = None
-    showcase_shapes: int = 2
-    code_iterations: int = 800
-    active_views: int = 6
-    active_strategies: Sequence[str] = ("uncertainty", "unseen-uncertainty", "farthest", "random", "oracle")
-    active_scales: Sequence[float] = (1.0, 0.1)
-    active_shapes: int | None = None
-    active_candidates: str = "auto"
-    active_azimuths: int = 12
-    active_elevations: int = 2
-    seed: int = 0
-    protocols: Sequence[str] = PAPER_PROTOCOLS
-
-    def __post_init__(self) -> None:
-        unknown = [p for p in self.protocols if p not in PROTOCOLS]
-        if unknown:
-            raise ValueError(f"unknown protocols {unknown}; choose from {PROTOCOLS}")
-        if self.group_size < 1 or self.resolution < 8:
-            raise ValueError("group_size must be >= 1 and resolution >= 8 (grid points per axis)")
-        if not set(self.depth_methods) <= set(DEPTH_METHODS) or self.depth_size < 1 or self.depth_codes < 2:
-            raise ValueError(
-                f"depth_methods must be some of {DEPTH_METHODS}, depth_size >= 1 and depth_codes >= 2; "
-                f"got {list(self.depth_methods)}, {self.depth_size}, {self.depth_codes}"
-            )
-        check_active_settings(self)
-
 
 def evaluate_encoder(
-    run: EncoderRun, settings: Settings, cache_dir: Path | None, setting: tuple[Callable, str, float] | None = None
+    run: EncoderRun,
+    settings: Settings,
+    cache_dir: Path | None,
+    setting: tuple[Callable, str, float] | None = None,
+    protocols: Sequence[Protocol] | None = None,
 ) -> dict[str, list]:
-    """Records of every protocol asked for, the uncertainty rows and curves, and the configured setting's row."""
+    """Records of every protocol asked for, their row lists and curves, and the configured setting's row.
+
+    protocols: the built protocol objects (default: settings.protocols built from conf/protocol/plugins/).
+    """
+    protocols = load_protocols(settings.protocols, settings) if protocols is None else protocols
+    asked = {p.name: p for p in protocols if run.only is None or p.name in run.only}
+    context = EvalContext(run, settings, cache_dir, asked)
+    outputs = [context.output(name) for name in asked]
     out: dict[str, Any] = {**{key: [] for key in ROW_KEYS}, "curves": {}}
-    protocols = [p for p in settings.protocols if run.only is None or p in run.only]
-
-    def encode(scale: float):
-        return encode_views(
-            run.predictor, run.world, run.keys, scale, settings.seed, cache_dir, mask_input=run.mask_input
-        )
-
-    groups = P.group_views(run.keys, settings.group_size, drop_short=bool(run.world.config.get("drop_short_instances")))
-    rec = run.reconstructor
-    if "single_view" in protocols or "corrupted" in protocols:
-        scales = [1.0] if "corrupted" not in protocols else list(dict.fromkeys([1.0, *settings.single_view_scales]))
-        for scale in scales:
-            encodings = encode(scale).first_views(settings.single_view_views)
-            out["records"] += P.single_view_records(run.spec, encodings, rec, scale, emd=scale == 1.0)
-    if "multi_view" in protocols:
-        methods = P.fusion_methods(run.spec.probabilistic, range(1, settings.group_size))
-        out["records"] += P.multi_view_records(run.spec, encode(1.0), groups, methods, rec, 1.0)
-    if "corrupted" in protocols:
-        methods = P.fusion_methods(run.spec.probabilistic, [settings.table4_k])
-        for scale in dict.fromkeys([*settings.corrupted_scales, *settings.single_view_scales]):
-            if scale != 1.0 or "multi_view" not in protocols:
-                out["records"] += P.multi_view_records(run.spec, encode(scale), groups, methods, rec, scale)
-    if "uncertainty" in protocols:
-        encodings = encode(1.0)
-        codes = split_codes(run, settings, cache_dir)
-        rows, latent_curves = latent_rows(run.spec, encodings, codes, settings.calibration_levels)
-        sdf, sdf_curves = sdf_rows(
-            run.spec,
-            encodings,
-            run.predictor.decoder,
-            run.world,
-            settings.sdf_points,
-            settings.mc_samples,
-            settings.sdf_clamp,
-            settings.sdf_views,
-            settings.calibration_levels,
-            sdf_temperature=run.predictor.sdf_temperature,
-        )
-        out["uncertainty"] = rows + sdf
-        scales = [1.0] + (list(settings.single_view_scales) if "corrupted" in protocols else [])
-        tracking = [error_tracking_row(run.spec, encode(s), codes, s) for s in dict.fromkeys(scales)]
-        tracking += [pooled_error_tracking_row(run.spec, encode(1.0), encode(s), codes, s) for s in scales if s != 1.0]
-        out["error_tracking"] = with_shape_accuracy(tracking, out["records"])
-        out["curves"] = {"latent": curves_to_json(latent_curves), "sdf": curves_to_json(sdf_curves)}
-    if "locality" in protocols and not has_cameras(run.world, [k.shape_id for k in run.keys]):
-        log.warning(
-            "Table L skipped: the test renders of %s have no cameras (views.npz), so which parts a "
-            "view hides or crops away is unknown",
-            run.world.root,
-        )
-    elif "locality" in protocols:
-        scale = settings.locality_scale
-        out["locality_views"] = locality_records(
-            run.spec,
-            encode(1.0),
-            encode(scale),
-            run.predictor.decoder,
-            run.world,
-            scale,
-            settings.seed,
-            settings.locality_points,
-            settings.locality_views,
-        )
-        out["locality"] = summarise_locality(out["locality_views"])
-    if "active" in protocols:
-        records, out["active"] = active_records(run, settings, split_codes(run, settings, cache_dir))
-        out["records"] += records
-    if "depth" in protocols:
-        out["depth"], curves = depth_protocol(run, settings, encode)
-        out["curves"]["depth"] = curves_to_json(curves)
+    out["records"] = context.records() + [record for output in outputs for record in output.records]
+    for output in outputs:
+        for key, rows in output.rows.items():
+            out[key] = out.get(key, []) + rows
+        out["curves"].update(output.curves)
     if setting is not None and run.only is None:
-        out["rows"].append(setting_row(run, settings, groups, encode, *setting))
+        out["rows"].append(setting_row(context, *setting))
     return out
 
 
-def depth_protocol(run: EncoderRun, settings: Settings, encode: Callable) -> tuple[list[dict], dict]:
-    """Table D's rows and curves: depth std against the true depth error along each test view's own camera."""
-    if not has_cameras(run.world, [k.shape_id for k in run.keys]):
-        log.warning("Table D skipped: the test renders of %s have no cameras (views.npz)", run.world.root)
-        return [], {}
-    return depth_calibration_rows(
-        run.spec,
-        encode(1.0),
-        run.predictor.decoder,
-        run.world,
-        settings.depth_size,
-        settings.depth_methods,
-        settings.depth_codes,
-        settings.depth_steps,
-        settings.depth_views,
-        settings.calibration_levels,
-        settings.seed,
-    )
-
-
-def setting_row(
-    run: EncoderRun, settings: Settings, groups, encode, fuse: Callable, method: str, min_scale: float
-) -> dict:
+def setting_row(context: EvalContext, fuse: Callable, method: str, min_scale: float) -> dict:
     """One sweep row: single-view and fused multi-view IoU at the configured fusion rule and crop."""
-    encodings = encode(min_scale)
+    run, settings, groups = context.run, context.settings, context.groups
+    encodings = context.encode(min_scale)
     single = P.summarise(
         P.single_view_records(run.spec, encodings.first_views(settings.single_view_views), run.reconstructor, min_scale)
     )[0]
@@ -243,6 +97,8 @@ def evaluate_runs(
     world_dir: str | Path | None = None,
     showcase_dir: Path | None = None,
     temperature: bool = False,
+    protocols: Sequence[Protocol] | None = None,
+    methods: Sequence[ReconstructionMethod] = (),
 ) -> dict[str, Any]:
     """Load every run folder's encoder and evaluate them all (see `evaluate_all`)."""
     if not run_dirs:
@@ -251,9 +107,11 @@ def evaluate_runs(
     opened: dict[Path, WorldIndex] = {}
     runs = [load_encoder(run_dir, settings, cache_dir, taken, world_dir, temperature, opened) for run_dir in run_dirs]
     variants = [(variant, run_dir) for run, run_dir in zip(runs, run_dirs) for variant in mask_variants(run)]
-    result = evaluate_all([v for v, _ in variants], settings, cache_dir, setting, showcase_dir)
+    result = evaluate_all([v for v, _ in variants], settings, cache_dir, setting, showcase_dir, protocols, methods)
     for run, run_dir in variants:
-        result["runs"][run.spec.name]["run_dir"] = str(run_dir)
+        for method in [None, *methods]:
+            name = run.spec.name if method is None else f"{run.spec.name}+{method.name}"
+            result["runs"][name]["run_dir"] = str(run_dir)
     return result
 
 
@@ -263,12 +121,18 @@ def evaluate_all(
     cache_dir: Path | None = None,
     setting: tuple[Callable, str, float] | None = None,
     showcase_dir: Path | None = None,
+    protocols: Sequence[Protocol] | None = None,
+    methods: Sequence[ReconstructionMethod] = (),
 ) -> dict[str, Any]:
     """Every protocol for every encoder -> {records, summary, uncertainty, curves, rows, runs, settings, seconds}.
 
-    With showcase_dir, the first shapes' reconstructions with uncertainty are saved there (see showcase).
+    With showcase_dir, the first shapes' reconstructions with uncertainty are saved there (see showcase),
+    and each protocol's figures. protocols: as evaluate_encoder's. methods: reconstruction methods each
+    encoder is scored with too, as rows of their own (see methods).
     """
     started = time.time()
+    protocols = load_protocols(settings.protocols, settings) if protocols is None else protocols
+    runs = [variant for run in runs for variant in method_variants(run, methods)]
     result: dict[str, Any] = {
         **{key: [] for key in ROW_KEYS},
         "curves": {"latent": {}, "sdf": {}, "depth": {}},
@@ -276,45 +140,47 @@ def evaluate_all(
     }
     for run in runs:
         log.info("evaluating %s on %d views of %s", run.spec.label, len(run.keys), run.world.root)
-        part = evaluate_encoder(run, settings, cache_dir, setting)
-        for key in ROW_KEYS:
-            result[key] += part[key]
+        part = evaluate_encoder(run, settings, cache_dir, setting, protocols)
+        for key, rows in part.items():
+            if key != "curves":
+                result[key] = result.get(key, []) + rows
         for space, curves in part["curves"].items():
-            result["curves"][space].update(curves)
+            result["curves"].setdefault(space, {}).update(curves)
         result["runs"][run.spec.name] = {
             "checkpoint": str(run.predictor.checkpoint),
             "world": str(run.world.root),
             "label": run.spec.label,
         }
-        if showcase_dir is not None and settings.showcase_shapes > 0 and run.only is None:
-            encodings = encode_views(
-                run.predictor, run.world, run.keys, 1.0, settings.seed, cache_dir, mask_input=run.mask_input
-            )
-            save_showcase(
-                run,
-                encodings,
-                showcase_dir,
-                settings.group_size,
-                settings.showcase_shapes,
-                settings.resolution,
-                settings.mc_samples,
-            )
-        if showcase_dir is not None and "active" in settings.protocols and run.only is None:
-            save_active_sequence(run, settings, showcase_dir)
-    if runs and "single_view" in settings.protocols:
-        result["records"] += reference_rows(runs[0], settings, cache_dir)
+        if showcase_dir is not None and run.only is None and run.method is None:
+            save_figures(run, settings, cache_dir, showcase_dir, protocols)
+    for protocol in protocols:
+        result["records"] += protocol.after_all(runs, settings, cache_dir)
     result["summary"] = P.summarise(result["records"])
     result["settings"] = {k: (list(v) if isinstance(v, (tuple, range)) else v) for k, v in vars(settings).items()}
+    extra = [vars(table) for protocol in protocols for table in protocol.tables(result)]
+    if extra:
+        result["tables"] = extra
     result["seconds"] = round(time.time() - started, 1)
     return result
 
 
-def reference_rows(run: EncoderRun, settings: Settings, cache_dir: Path | None = None) -> list[dict]:
-    """Table 1's reference rows from the first run's decoder: the test shapes' own codes and the mean code."""
-    codes = split_codes(run, settings, cache_dir)
-    train = load_codes(run.codes_dir / codes_file("train"))
-    shape_ids = list(dict.fromkeys(k.shape_id for k in run.keys))
-    return P.reference_records(codes, train, shape_ids, run.reconstructor)
+def save_figures(run: EncoderRun, settings: Settings, cache_dir: Path | None, out_dir: Path, protocols) -> None:
+    """The showcase meshes of one encoder (see showcase) and every protocol's figures, under out_dir."""
+    if settings.showcase_shapes > 0:
+        encodings = encode_views(
+            run.predictor, run.world, run.keys, 1.0, settings.seed, cache_dir, mask_input=run.mask_input
+        )
+        save_showcase(
+            run,
+            encodings,
+            out_dir,
+            settings.group_size,
+            settings.showcase_shapes,
+            settings.resolution,
+            settings.mc_samples,
+        )
+    for protocol in protocols:
+        protocol.save_figures(run, settings, out_dir)
 
 
 def load_results(path: str | Path) -> dict[str, Any]:

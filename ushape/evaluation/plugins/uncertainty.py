@@ -1,0 +1,61 @@
+"""The uncertainty protocol (Tables S1 and U): latent- and SDF-space scores of the predicted Gaussians with
+the equal-variance baseline, and whether the variance tracks the error, clean and (with the corrupted
+protocol) at the Easy/Mid/Hard crops, beside the same views' single-view IoU where it was measured."""
+
+from __future__ import annotations
+
+from ushape.evaluation.plugin import Output, Protocol
+from ushape.evaluation.uncertainty_protocol import (
+    curves_to_json,
+    error_tracking_row,
+    latent_rows,
+    pooled_error_tracking_row,
+    sdf_rows,
+    with_shape_accuracy,
+)
+
+SHAPE_PROTOCOLS = ("single_view", "corrupted")  # whose single-view records give Table U its IoU and CD
+
+
+class Uncertainty(Protocol):
+    """sdf_points: ground-truth SDF samples per view; mc_samples: Monte Carlo codes per prediction;
+    sdf_views: each shape's first views (None: all); sdf_clamp: the decoder's training clamp."""
+
+    name = "uncertainty"
+
+    def __init__(
+        self, sdf_points: int = 1024, mc_samples: int = 10, sdf_views: int | None = None, sdf_clamp: float | None = 0.1
+    ) -> None:
+        self.sdf_points, self.mc_samples, self.sdf_views, self.sdf_clamp = sdf_points, mc_samples, sdf_views, sdf_clamp
+
+    def run(self, context) -> Output:
+        run, settings = context.run, context.settings
+        encodings, codes = context.encode(1.0), context.split_codes()
+        rows, latent_curves = latent_rows(run.spec, encodings, codes, settings.calibration_levels)
+        sdf, sdf_curves = sdf_rows(
+            run.spec,
+            encodings,
+            run.predictor.decoder,
+            run.world,
+            self.sdf_points,
+            self.mc_samples,
+            self.sdf_clamp,
+            self.sdf_views,
+            settings.calibration_levels,
+            sdf_temperature=run.predictor.sdf_temperature,
+        )
+        for name in SHAPE_PROTOCOLS:
+            if context.asked(name):
+                context.output(name)
+        return Output(
+            rows={"uncertainty": rows + sdf, "error_tracking": self.error_tracking(context, codes)},
+            curves={"latent": curves_to_json(latent_curves), "sdf": curves_to_json(sdf_curves)},
+        )
+
+    @staticmethod
+    def error_tracking(context, codes) -> list[dict]:
+        scales = [1.0] + (list(context.settings.single_view_scales) if context.asked("corrupted") else [])
+        spec, clean = context.spec, context.encode(1.0)
+        tracking = [error_tracking_row(spec, context.encode(s), codes, s) for s in dict.fromkeys(scales)]
+        tracking += [pooled_error_tracking_row(spec, clean, context.encode(s), codes, s) for s in scales if s != 1.0]
+        return with_shape_accuracy(tracking, context.records())
