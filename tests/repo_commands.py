@@ -11,7 +11,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 
 
-def run_command(root, *args: str, timeout: float = 600) -> subprocess.CompletedProcess:
-    """`python <args>` in the repo root with USHAPE_ROOT=root (its outputs/ go there); output captured."""
-    env = {**os.environ, "USHAPE_ROOT": str(root)}
+def run_command(root, *args: str, timeout: float = 600, env: dict | None = None) -> subprocess.CompletedProcess:
+    """`python <args>` in the repo root with USHAPE_ROOT=root (its outputs/ go there) and `env` added; output
+    captured."""
+    env = {**os.environ, **(env or {}), "USHAPE_ROOT": str(root)}
     return subprocess.run([sys.executable, *args], cwd=REPO, env=env, capture_output=True, text=True, timeout=timeout)

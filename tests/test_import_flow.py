@@ -13,12 +13,13 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "ushape"
 
-# Building blocks (file I/O, run-folder names, checkpoints, building configured objects), then the
-# data's way: procedural shapes, datasets and rendering, grids and marching cubes, the scoring maths,
-# stage 1, stage 2, fusion, propagation, recalibration, reconstruction, next-best-view planning, and the
-# commands built on all of them, with the `ushape` command that runs each of them last.
+# Building blocks (the bad-input error type, file I/O, run-folder names, checkpoints, building configured
+# objects), then the data's way: procedural shapes, datasets and rendering, grids and marching cubes, the
+# scoring maths, stage 1, stage 2, fusion, propagation, recalibration, reconstruction, next-best-view
+# planning, and the commands built on all of them, with the `ushape` command that runs each of them last.
 FLOW = (
     "torchvision_cpu",
+    "errors",
     "atomic",
     "workspace",
     "checkpoints",

@@ -15,12 +15,14 @@ from typing import Any
 
 import torch
 
+from ushape.errors import InputError
+
 log = logging.getLogger(__name__)
 
 DAMAGED_SUFFIX = ".damaged"
 
 
-class DamagedCheckpoint(ValueError):
+class DamagedCheckpoint(InputError):
     """A checkpoint file that exists but cannot be loaded; the message names it and why."""
 
 

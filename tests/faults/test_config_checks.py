@@ -30,6 +30,10 @@ def _compose(overrides, config="train"):
         ("stage=foo", "stage='foo'"),
         ("fusion=bayesian_k", None),
         ("stage2.max_epochs=0", "stage2.max_epochs=0"),
+        ("data.n_train=0", "data.n_train=0 must be an integer >= 1"),
+        ("encoder.latent_size=32", "encoder.latent_size=32 but decoder.latent_size=64"),
+        ("data=pix3d", "is for evaluation only"),
+        ("decoder.latent_size=32", None),  # the encoder's size follows the decoder's
     ],
 )
 def test_bad_values_are_named_before_anything_runs(override, named):

@@ -21,6 +21,7 @@ from typing import Sequence
 from ushape import atomic
 from ushape.bench.computation import BenchSettings, run_bench
 from ushape.bench.report import markdown_report
+from ushape.errors import InputError
 
 DEFAULT_OUT_DIR = Path("outputs") / "bench"
 
@@ -55,7 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.deepsdf_fraction <= 0 or args.deepsdf_fraction > 1:
-        raise SystemExit(f"--deepsdf-fraction must be in (0, 1], got {args.deepsdf_fraction}")
+        raise InputError(f"--deepsdf-fraction must be in (0, 1], got {args.deepsdf_fraction}")
     resolution = args.resolution or (32 if args.quick else 128)
     settings = BenchSettings(
         resolution=resolution,

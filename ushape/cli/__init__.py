@@ -17,6 +17,8 @@ import importlib
 import sys
 from typing import Sequence
 
+from ushape.errors import reporting_bad_input
+
 # command -> (module whose main() runs it, what it does). Hydra commands read their overrides from sys.argv.
 COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("ushape.cli.train", "train stage 1 and/or stage 2 (Hydra: loss=es category=tables, -m for sweeps)"),
@@ -48,6 +50,11 @@ def main(argv: Sequence[str] | None = None, prog: str | None = None) -> int:
     if name not in COMMANDS:
         print(f"ushape: unknown command {name!r}\n\n{usage()}", file=sys.stderr)
         return 2
+    with reporting_bad_input():  # one line and exit code 2, whichever command it comes from
+        return _run(name, rest, prog)
+
+
+def _run(name: str, rest: list[str], prog: str | None) -> int:
     command = importlib.import_module(COMMANDS[name][0]).main
     if name in HYDRA_COMMANDS:
         sys.argv = [prog or f"ushape {name}", *rest]  # Hydra parses sys.argv; a resume message repeats it

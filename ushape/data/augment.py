@@ -12,6 +12,7 @@ Every random step takes an optional torch.Generator, so evaluation can be made r
 from __future__ import annotations
 
 import math
+import warnings
 import zlib
 from pathlib import Path
 from typing import Callable, Sequence
@@ -38,13 +39,14 @@ def read_image(path: str | Path) -> np.ndarray:
 
     Every mode Pillow reads keeps its real content: 16-bit grey is scaled by 65535 (not clipped),
     palette/LA/CMYK/1-bit go through Pillow's own conversion, and a JPEG's EXIF orientation is
-    applied. Modes with no fixed white level (32-bit float) are refused with a ValueError naming them.
+    applied. Modes with no fixed white level (32-bit float) are refused with a ValueError naming them,
+    and so are images of more pixels than Pillow's MAX_IMAGE_PIXELS (89.5 Mpx, e.g. 9459 x 9459).
     """
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"image {path} does not exist")
     try:
-        with Image.open(path) as img:
+        with _open_within_limit(path) as img:
             img = ImageOps.exif_transpose(img)
             if img.mode in _WIDE_GREY_MODES:
                 grey = np.asarray(img, dtype=np.float32)
@@ -55,10 +57,23 @@ def read_image(path: str | Path) -> np.ndarray:
             if img.mode == "F":
                 raise ValueError("mode F (32-bit float) has no fixed white level; save it as 8- or 16-bit")
             return np.asarray(img.convert("RGBA"), dtype=np.float32) / 255.0
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as err:
+        # Gigabytes to read, for a model that sees a few hundred pixels a side.
+        raise ValueError(
+            f"image {path} has more than {Image.MAX_IMAGE_PIXELS:,} pixels, Pillow's limit against "
+            f"decompression bombs ({err}); downscale it to a few hundred pixels a side"
+        ) from err
     except ValueError as err:
         raise ValueError(f"image {path} cannot be read as RGBA: {err}") from err
     except (UnidentifiedImageError, OSError, SyntaxError) as err:
         raise ValueError(f"image {path} is corrupt or unreadable ({err}); re-render or delete it") from err
+
+
+def _open_within_limit(path: Path) -> Image.Image:
+    """Image.open, raising DecompressionBombWarning too (Pillow only warns between MAX_IMAGE_PIXELS and twice it)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", Image.DecompressionBombWarning)
+        return Image.open(path)
 
 
 def premultiply(straight: np.ndarray) -> Tensor:

@@ -26,6 +26,7 @@ from ushape.data import integrity
 from ushape.data.jobs import run_jobs
 from ushape.data.layout import SPLITS, WorldIndex, world_dir_name
 from ushape.data.shape_artifacts import ShapeFactory, ShapeJob, ShapeResult, artifact_problems, build_shape
+from ushape.errors import InputError
 
 log = logging.getLogger(__name__)
 
@@ -68,7 +69,7 @@ class SyntheticWorld:
     ) -> None:
         counts = {"train": n_train, "val": n_val, "test": n_test}
         if any(int(n) < 0 for n in counts.values()) or n_train < 1:
-            raise ValueError(f"need n_train >= 1 and n_val, n_test >= 0, got {counts}")
+            raise InputError(f"need n_train >= 1 and n_val, n_test >= 0, got {counts}")
         for name, value in (
             ("samples_per_shape", samples_per_shape),
             ("n_views", n_views),
@@ -76,7 +77,7 @@ class SyntheticWorld:
             ("mesh_resolution", mesh_resolution),
         ):
             if int(value) < 1:
-                raise ValueError(f"{name} must be positive, got {value}")
+                raise InputError(f"{name} must be positive, got {value}")
         self.factory = shape_factory or default_shape_factory(category)
         self.root = Path(root).expanduser()
         self.counts = {k: int(v) for k, v in counts.items()}
@@ -227,7 +228,7 @@ def open_world(root: str | Path) -> WorldIndex:
             f"{path} ({reason})" for sid in index.shape_ids() for path, reason in artifact_problems(index, sid).values()
         ]
         if problems:
-            raise ValueError(
+            raise InputError(
                 f"the read-only world {index.root} has {len(problems)} missing or corrupt files, e.g. "
                 f"{'; '.join(problems[:3])}: copy it somewhere writable and evaluate the copy (it is repaired there)"
             )
@@ -240,5 +241,5 @@ def default_shape_factory(category: str) -> ShapeFactory:
     from ushape.shapes import CATEGORIES, generate_shape
 
     if category not in CATEGORIES:
-        raise ValueError(f"unknown category {category!r}; valid categories: {', '.join(CATEGORIES)}")
+        raise InputError(f"unknown category {category!r}; valid categories: {', '.join(CATEGORIES)}")
     return generate_shape

@@ -24,6 +24,7 @@ from ushape import atomic
 from ushape.data.sdf_dataset import SDFSamplesDataset
 from ushape.decoder.artifacts import DONE_FILE, codes_file, load_codes, load_decoder
 from ushape.decoder.query import code_sdf_fn
+from ushape.errors import InputError, MissingInputError
 from ushape.mesh.extraction import EmptySurfaceError, extract_mesh
 from ushape.mesh.preview import preview_image
 from ushape.metrics.reconstruction import (
@@ -94,10 +95,10 @@ def _world_root(decoder_dir: Path) -> Path:
     """The world a decoder was trained on, as fit_decoder recorded it in the DONE marker."""
     done = decoder_dir / DONE_FILE
     if not done.exists():
-        raise FileNotFoundError(f"{decoder_dir} has no {DONE_FILE} marker: stage 1 has not finished there")
+        raise MissingInputError(f"{decoder_dir} has no {DONE_FILE} marker: stage 1 has not finished there")
     root = json.loads(done.read_text()).get("world_root")
     if root is None:
-        raise ValueError(f"{done} does not record its world; pass --world /path/to/the/data/folder")
+        raise InputError(f"{done} does not record its world; pass --world /path/to/the/data/folder")
     return Path(root)
 
 

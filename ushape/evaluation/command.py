@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import sys
 import time
 from pathlib import Path
 
@@ -11,13 +10,14 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from ushape.builders import build
+from ushape.errors import bad_input_exit
 from ushape.evaluation.plugin import load_protocols
 from ushape.evaluation.report import write_results
 from ushape.evaluation.runner import evaluate_runs
 from ushape.evaluation.settings import PAPER_PROTOCOLS, Settings
 from ushape.evaluation.sources import resolve_runs
 from ushape.training.summary import discard_if_bookkeeping_only
-from ushape.training.validation import ConfigError, check_config
+from ushape.training.validation import check_config
 
 log = logging.getLogger(__name__)
 
@@ -90,9 +90,9 @@ def run_eval(cfg: DictConfig) -> float | None:
     except BaseException as err:
         if hydra_dir is not None:
             discard_if_bookkeeping_only(Path(hydra_dir))
-        if isinstance(err, ConfigError):
-            print(f"error: {err}", file=sys.stderr)
-            raise SystemExit(2) from None
+        stop = bad_input_exit(err)
+        if stop is not None:
+            raise stop from None
         raise
 
 

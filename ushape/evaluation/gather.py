@@ -19,6 +19,7 @@ from typing import Any
 import yaml
 
 from ushape import atomic
+from ushape.errors import MissingInputError
 from ushape.evaluation.report import rows_to_csv
 from ushape.evaluation.settings import RESULT_ROW
 
@@ -44,10 +45,10 @@ def gather_rows(sweep: str | Path) -> list[dict[str, Any]]:
     """One dict per (job, encoder) row of a sweep folder, in job order."""
     sweep = Path(sweep).expanduser()
     if not sweep.is_dir():
-        raise FileNotFoundError(f"sweep folder {sweep} does not exist")
+        raise MissingInputError(f"sweep folder {sweep} does not exist")
     files = sorted(sweep.rglob(RESULT_ROW), key=lambda p: _job_order(p.parent.relative_to(sweep).as_posix()))
     if not files:
-        raise FileNotFoundError(
+        raise MissingInputError(
             f"no <job>/{RESULT_ROW} under {sweep}: is it an evaluation sweep "
             "(`python eval.py -m ...`)? A training sweep is evaluated with `python eval.py sweep=...`"
         )

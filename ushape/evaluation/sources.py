@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 from typing import Sequence
 
+from ushape.errors import MissingInputError
 from ushape.workspace import MULTIRUN_DIR, RUN_SUMMARY, RUNS_DIR
 
 SEARCHED = (RUNS_DIR, MULTIRUN_DIR)
@@ -25,10 +26,10 @@ def sweep_runs(sweep: str | Path) -> list[Path]:
     """The encoder runs (job folders) of a multirun folder, in job order."""
     sweep = Path(sweep).expanduser()
     if not sweep.is_dir():
-        raise FileNotFoundError(f"sweep folder {sweep} does not exist")
+        raise MissingInputError(f"sweep folder {sweep} does not exist")
     runs = sorted((p.parent for p in sweep.glob(f"*/{RUN_SUMMARY}") if is_encoder_run(p.parent)), key=_job_order)
     if not runs:
-        raise FileNotFoundError(f"{sweep} holds no finished encoder runs (<job>/run.json with stage=encoder): {HINT}")
+        raise MissingInputError(f"{sweep} holds no finished encoder runs (<job>/run.json with stage=encoder): {HINT}")
     return runs
 
 
@@ -37,7 +38,7 @@ def latest_runs(root: str | Path = ".") -> list[Path]:
     root = Path(root)
     found = [p.parent for base in SEARCHED for p in (root / base).glob(f"**/{RUN_SUMMARY}") if is_encoder_run(p.parent)]
     if not found:
-        raise FileNotFoundError(f"no finished encoder run under {root / SEARCHED[0]} or {root / SEARCHED[1]}: {HINT}")
+        raise MissingInputError(f"no finished encoder run under {root / SEARCHED[0]} or {root / SEARCHED[1]}: {HINT}")
     newest = max(found, key=lambda p: (p / RUN_SUMMARY).stat().st_mtime)
     multirun = (root / SEARCHED[1]).resolve()
     return sweep_runs(newest.parent) if multirun in newest.resolve().parents else [newest]
@@ -51,7 +52,7 @@ def resolve_runs(
         paths = [Path(r).expanduser() for r in runs]
         missing = [str(p) for p in paths if not p.exists()]
         if missing:
-            raise FileNotFoundError(f"run folder(s) {missing} do not exist: {HINT}")
+            raise MissingInputError(f"run folder(s) {missing} do not exist: {HINT}")
         return paths
     if sweep:
         return sweep_runs(sweep)

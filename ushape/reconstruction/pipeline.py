@@ -5,12 +5,15 @@ Cameras for the depth maps: an input that is a render of our world (`renders/<id
 from a canonical R2N2-like camera: azimuth 45, elevation 27.5 deg (the middle of R2N2's range),
 distance 2.8 = 0.8 * 1.75 / 0.5 (R2N2's mean distance ratio in our unit-sphere frame), 49.13 deg
 field of view. Its depth map shows the reconstruction's uncertainty from that fixed viewpoint,
-not aligned with the photo.
+not aligned with the photo. So does a render whose views.npz cannot be read, with a warning naming
+the file: the camera only places the depth map, the shape does not depend on it.
 """
 
 from __future__ import annotations
 
+import logging
 import time
+import zipfile
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -38,6 +41,8 @@ from ushape.reconstruction.predictor import Predictor
 from ushape.reconstruction.sphere_tracing import DepthStats
 from ushape.reconstruction.visibility import hidden_over_visible
 
+log = logging.getLogger(__name__)
+
 CANONICAL_CAMERA = {"azimuth_deg": 45.0, "elevation_deg": 27.5, "distance": 2.8, "fov_deg": R2N2_FOV_DEG}
 SUMMARY_FILE = "summary.json"
 
@@ -64,13 +69,24 @@ def view_camera(path: Path, size: int) -> tuple[np.ndarray, np.ndarray, str]:
     """(K [3,3] for a size x size image, world_to_cam [4,4], "render" | "canonical") for one input image."""
     views = path.parent / VIEWS_FILE
     if views.is_file() and path.stem.isdigit():
-        with np.load(views) as cams:
-            view = int(path.stem)
-            if view < len(cams["K"]):
-                K = cams["K"][view].astype(np.float64)
-                render_size = 2.0 * K[0, 2]  # the principal point is the image centre
-                scale = np.diag([size / render_size, size / render_size, 1.0])
-                return scale @ K, cams["world_to_cam"][view].astype(np.float64), "render"
+        try:
+            with np.load(views) as cams:
+                view = int(path.stem)
+                if view < len(cams["K"]):
+                    K = cams["K"][view].astype(np.float64)
+                    render_size = 2.0 * K[0, 2]  # the principal point is the image centre
+                    scale = np.diag([size / render_size, size / render_size, 1.0])
+                    return scale @ K, cams["world_to_cam"][view].astype(np.float64), "render"
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as err:
+            # Only the depth map needs the camera: the shape is the same, seen from the canonical view.
+            log.warning(
+                "camera file %s of %s cannot be read (%s: %s): its depth map is traced from the canonical "
+                "camera instead; re-render the view or delete the file",
+                views,
+                path,
+                type(err).__name__,
+                err,
+            )
     c = CANONICAL_CAMERA
     K, w2c = look_at(c["azimuth_deg"], c["elevation_deg"], c["distance"], c["fov_deg"], size)
     return K, w2c, "canonical"

@@ -27,6 +27,7 @@ from torch import Tensor, nn
 
 from ushape.checkpoints import load_checkpoint
 from ushape.data.augment import IMAGE_SUFFIXES, CompositeBackground, load_rgba, resize
+from ushape.errors import InputError, MissingInputError
 from ushape.recalibration.temperature import apply_temperature
 from ushape.workspace import (
     BEST_FILE,
@@ -59,7 +60,7 @@ def latest_run(root: str | Path = ".") -> Path:
         if stage == "encoder":
             candidates.append(summary)
     if not candidates:
-        raise FileNotFoundError(
+        raise MissingInputError(
             f"no finished encoder run (run.json with stage=encoder) under {runs_dir}: {NO_RUN_HINT}"
         )
     return max(candidates, key=lambda p: p.stat().st_mtime).parent
@@ -72,7 +73,7 @@ def resolve_checkpoint(source: str | Path) -> tuple[Path, Path | None]:
         run_dir = source.parent.parent
         return source, run_dir if (run_dir / HYDRA_CONFIG).is_file() else None
     if not source.is_dir():
-        raise FileNotFoundError(f"{source} is neither a run folder nor a checkpoint file: {NO_RUN_HINT}")
+        raise MissingInputError(f"{source} is neither a run folder nor a checkpoint file: {NO_RUN_HINT}")
     summary = source / RUN_SUMMARY
     recorded = read_summary(source).get("encoder_checkpoint") if summary.is_file() else None
     if recorded:
@@ -80,7 +81,7 @@ def resolve_checkpoint(source: str | Path) -> tuple[Path, Path | None]:
         # must never evaluate the checkpoint of the folder it was copied from.
         own = source / CHECKPOINT_DIR / Path(recorded).name
         if not own.is_file():
-            raise FileNotFoundError(
+            raise MissingInputError(
                 f"run folder {source} has no {CHECKPOINT_DIR}/{own.name}, the checkpoint its "
                 f"{RUN_SUMMARY} names (deleted, or the folder was copied without it): {NO_RUN_HINT}"
             )
@@ -88,7 +89,7 @@ def resolve_checkpoint(source: str | Path) -> tuple[Path, Path | None]:
     for name in DEFAULT_CHECKPOINTS:
         if (source / name).is_file():
             return source / name, source
-    raise FileNotFoundError(f"run folder {source} holds no encoder checkpoint (checkpoints/best.ckpt): {NO_RUN_HINT}")
+    raise MissingInputError(f"run folder {source} holds no encoder checkpoint (checkpoints/best.ckpt): {NO_RUN_HINT}")
 
 
 def read_summary(run_dir: Path) -> dict:
@@ -99,7 +100,7 @@ def read_summary(run_dir: Path) -> dict:
     try:
         return json.loads(path.read_text())
     except (OSError, ValueError) as err:
-        raise ValueError(f"{path} is damaged ({err}): rerun the training command to rewrite it") from err
+        raise InputError(f"{path} is damaged ({err}): rerun the training command to rewrite it") from err
 
 
 def temperature_path(checkpoint: str | Path) -> Path:
@@ -111,7 +112,7 @@ def read_temperatures(checkpoint: str | Path) -> tuple[float, float | None]:
     stored them beside a checkpoint, read in one go."""
     path = temperature_path(checkpoint)
     if not path.is_file():
-        raise FileNotFoundError(
+        raise MissingInputError(
             f"no {TEMPERATURE_FILE} beside {checkpoint}: fit it first with `python reconstruct.py --fit-temperature "
             f"--checkpoint {checkpoint}`"
         )
@@ -242,10 +243,10 @@ def trained_decoder(blob: dict, checkpoint: Path, run_dir: Path | None) -> Path:
     """The stage-1 decoder folder the encoder was trained against, found again if outputs/ moved."""
     recorded = (blob.get("hyper_parameters") or {}).get("decoder_path")
     if not recorded:
-        raise ValueError(f"checkpoint {checkpoint} records no decoder_path: not an encoder checkpoint of ushape")
+        raise InputError(f"checkpoint {checkpoint} records no decoder_path: not an encoder checkpoint of ushape")
     path = relocated(recorded, run_dir)
     if not path.exists():
-        raise FileNotFoundError(
+        raise MissingInputError(
             f"the stage-1 decoder that {checkpoint} was trained against is gone: not at {recorded}"
             + (" nor at the same place under the outputs/ folder holding the run" if run_dir else "")
             + "; restore that folder (a retrained decoder would not match this encoder)"

@@ -22,11 +22,12 @@ from ushape.decoder.basis import ensure_basis
 from ushape.decoder.fit import fit_decoder
 from ushape.decoder.recode import ensure_codes
 from ushape.encoder.fit import fit_encoder
+from ushape.errors import bad_input_exit
 from ushape.training.decoder_store import decoder_dir_for, ensure_decoder, legacy_decoder_dir_for
 from ushape.training.demo_meshes import demo_digest, write_demo_meshes
 from ushape.training.interrupts import resume_command, resume_exit, stopping_signal, watch_signals
 from ushape.training.summary import discard_if_bookkeeping_only, print_config, print_summary
-from ushape.training.validation import ConfigError, check_config
+from ushape.training.validation import check_config
 from ushape.workspace import CHECKPOINT_DIR, LAST_FILE, RUN_SUMMARY
 
 log = logging.getLogger(__name__)
@@ -58,9 +59,9 @@ def run(cfg: DictConfig) -> float | None:
         except BaseException as err:
             if main and discard_if_bookkeeping_only(out_dir):
                 log.info("removed %s: the run stopped before writing anything", out_dir)
-            if isinstance(err, ConfigError):  # the user's typo: the message, not a traceback
-                print(f"error: {err}", file=sys.stderr)
-                raise SystemExit(2) from None
+            stop = bad_input_exit(err)  # a bad config or data folder: one line, not a traceback
+            if stop is not None:
+                raise stop from None
             signum = stopping_signal(err, watch)
             if signum is None or not main:
                 raise

@@ -49,6 +49,7 @@ from ushape.data import integrity
 from ushape.data.augment import MASK_MODES, build_transform
 from ushape.data.layout import WorldIndex
 from ushape.data.real.mesh_sdf import MeshProcessingError, load_mesh, normalise_mesh, previous_signs, sample_mesh_sdf
+from ushape.errors import InputError, MissingInputError
 
 log = logging.getLogger(__name__)
 
@@ -99,7 +100,7 @@ def parse_entry(raw: dict[str, Any]) -> Pix3DEntry:
     """A Pix3DEntry from one pix3d.json record; ValueError naming the missing keys."""
     missing = [k for k in ("img", "mask", "model", "category", "bbox", "img_size") if k not in raw]
     if missing:
-        raise ValueError(f"pix3d.json entry {raw.get('img', '?')} lacks {missing}")
+        raise InputError(f"pix3d.json entry {raw.get('img', '?')} lacks {missing}")
     as_tuple = lambda v: None if v is None else tuple(tuple(r) if isinstance(r, list) else r for r in v)  # noqa: E731
     return Pix3DEntry(
         img=raw["img"],
@@ -127,13 +128,13 @@ def load_annotations(
     """Entries of pix3d.json, filtered by category and occlusion flags, in file order."""
     path = Path(root).expanduser() / ANNOTATIONS_FILE
     if not path.is_file():
-        raise FileNotFoundError(f"{path} does not exist. Expected Pix3D's layout:\n{EXPECTED_LAYOUT}")
+        raise MissingInputError(f"{path} does not exist. Expected Pix3D's layout:\n{EXPECTED_LAYOUT}")
     try:
         records = json.loads(path.read_text())
     except ValueError as err:
-        raise ValueError(f"{path} is not valid JSON ({err}); re-download pix3d.json") from err
+        raise InputError(f"{path} is not valid JSON ({err}); re-download pix3d.json") from err
     if not isinstance(records, list):
-        raise ValueError(f"{path} must hold a JSON list of image entries")
+        raise InputError(f"{path} must hold a JSON list of image entries")
     entries = [parse_entry(r) for r in records]
     if category is not None:
         wanted = pix3d_category(category)
@@ -150,7 +151,7 @@ def load_annotations(
 def multiview_groups(entries: Sequence[Pix3DEntry], group_size: int = 10) -> list[list[int]]:
     """Pix3D-MV: entry indices per instance, `group_size` images of one model each, remainders dropped."""
     if group_size < 1:
-        raise ValueError(f"group_size must be positive, got {group_size}")
+        raise InputError(f"group_size must be positive, got {group_size}")
     by_model: dict[str, list[int]] = defaultdict(list)
     for i, entry in enumerate(entries):
         by_model[entry.model_id].append(i)
@@ -167,7 +168,7 @@ def square_box(bbox: Sequence[float], margin: float = 0.1) -> tuple[float, float
     if x1 <= x0 or y1 <= y0:
         raise ValueError(f"bbox must be (x0, y0, x1, y1) with x1 > x0 and y1 > y0, got {tuple(bbox)}")
     if margin < 0:
-        raise ValueError(f"margin must be non-negative, got {margin}")
+        raise InputError(f"margin must be non-negative, got {margin}")
     half = max(x1 - x0, y1 - y0) * (1.0 + 2.0 * margin) / 2.0
     cx, cy = (x0 + x1) / 2.0, (y0 + y1) / 2.0
     return cx - half, cy - half, cx + half, cy + half
@@ -210,7 +211,7 @@ def view_rgba(root: Path, entry: Pix3DEntry, size: int, margin: float) -> np.nda
 def load_crop(root: Path, entry: Pix3DEntry, size: int, margin: float, mask_mode: str) -> tuple[Tensor, Tensor]:
     """(premultiplied RGBA [4,S,S] in [0,1], ground-truth mask [1,S,S] in [0,1]) of one entry."""
     if mask_mode not in MASK_MODES:
-        raise ValueError(f"mask_mode must be one of {MASK_MODES}, got {mask_mode!r}")
+        raise InputError(f"mask_mode must be one of {MASK_MODES}, got {mask_mode!r}")
     rgb, mask = open_photo(root, entry)
     alpha = mask if mask_mode == "gt_mask" else Image.new("L", rgb.size, 255)
     rgba = rgb.copy()
@@ -248,7 +249,7 @@ class Pix3DImages(Dataset):
         transform: Optional[Callable[..., Tensor]] = None,
     ) -> None:
         if mask_mode not in MASK_MODES:
-            raise ValueError(f"mask_mode must be one of {MASK_MODES}, got {mask_mode!r}")
+            raise InputError(f"mask_mode must be one of {MASK_MODES}, got {mask_mode!r}")
         self.root = Path(root).expanduser()
         self.entries = load_annotations(self.root, category, drop_truncated, drop_occluded, drop_slightly_occluded)
         if multiview:
@@ -258,7 +259,7 @@ class Pix3DImages(Dataset):
             self.groups = []
             self.items = [(i, -1, -1) for i in range(len(self.entries))]
         if not self.items:
-            raise ValueError(f"no Pix3D images of category {category!r} left after filtering under {self.root}")
+            raise InputError(f"no Pix3D images of category {category!r} left after filtering under {self.root}")
         self.crop_size, self.margin, self.mask_mode = int(crop_size), float(margin), mask_mode
         self.image_size = int(image_size)
         # The crop's alpha already encodes mask_mode; compositing on plain white only fills what
@@ -316,6 +317,8 @@ class Pix3DWorld:
     ShapeNet v2 meshes are scored in their own frame. `images(...)` gives the same photos as a
     Dataset with on-the-fly crops.
     """
+
+    EVALUATION_ONLY = True  # every model is a test shape: train.py refuses it (training.validation)
 
     def __init__(
         self,
@@ -390,7 +393,7 @@ class Pix3DWorld:
                 skipped[model_id] = f"{type(err).__name__}: {err}"
         ids = sorted(set(photos) - set(skipped))
         if not ids:
-            raise ValueError(f"no usable Pix3D {self.category} model under {self.root} ({len(skipped)} skipped)")
+            raise InputError(f"no usable Pix3D {self.category} model under {self.root} ({len(skipped)} skipped)")
         views = {m: len(photos[m]) for m in ids}
         atomic.write_json(
             root / "config.json", {**self.config, "n_views": max(views.values()), "views_per_shape": views}

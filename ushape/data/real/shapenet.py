@@ -17,6 +17,8 @@ import warnings
 from pathlib import Path
 from typing import Any, Mapping, Sequence, Union
 
+from ushape.errors import InputError, MissingInputError
+
 SPLITS = ("train", "val", "test")
 SYNSETS = {"chairs": "03001627", "tables": "04379243"}
 MODEL_FILES = {"v1": Path("model.obj"), "v2": Path("models") / "model_normalized.obj"}
@@ -38,24 +40,24 @@ def synset_id(category: str) -> str:
         return SYNSETS[category]
     if len(category) == 8 and category.isdigit():
         return category
-    raise ValueError(f"unknown ShapeNet category {category!r}: use one of {sorted(SYNSETS)} or an 8-digit synset id")
+    raise InputError(f"unknown ShapeNet category {category!r}: use one of {sorted(SYNSETS)} or an 8-digit synset id")
 
 
 def detect_layout(root: str | Path, synset: str) -> str:
     """'v1' or 'v2', from the model files found in <root>/<synset>; a clear error if neither fits."""
     root = Path(root).expanduser()
     if not root.is_dir():
-        raise FileNotFoundError(f"ShapeNet root {root} does not exist. {LAYOUT_HELP}.")
+        raise MissingInputError(f"ShapeNet root {root} does not exist. {LAYOUT_HELP}.")
     folder = root / synset
     if not folder.is_dir():
         found = sorted(p.name for p in root.iterdir() if p.is_dir())[:8]
-        raise FileNotFoundError(
+        raise MissingInputError(
             f"{root} has no synset folder {synset}. {LAYOUT_HELP}; found folders {found}. "
             "Point data.root at the folder that holds the synset folders."
         )
     counts = {name: sum(1 for d in folder.iterdir() if (d / rel).is_file()) for name, rel in MODEL_FILES.items()}
     if counts["v1"] == counts["v2"] == 0:
-        raise ValueError(f"no model files under {folder}. {LAYOUT_HELP}.")
+        raise InputError(f"no model files under {folder}. {LAYOUT_HELP}.")
     if counts["v1"] and counts["v2"]:
         warnings.warn(f"{folder} mixes v1 and v2 model files ({counts}); using the more common layout")
     return "v2" if counts["v2"] >= counts["v1"] else "v1"
@@ -64,7 +66,7 @@ def detect_layout(root: str | Path, synset: str) -> str:
 def model_path(root: str | Path, synset: str, model_id: str, layout: str) -> Path:
     """Path of one model's OBJ file in the given layout."""
     if layout not in MODEL_FILES:
-        raise ValueError(f"layout must be one of {sorted(MODEL_FILES)}, got {layout!r}")
+        raise InputError(f"layout must be one of {sorted(MODEL_FILES)}, got {layout!r}")
     return Path(root).expanduser() / synset / model_id / MODEL_FILES[layout]
 
 
@@ -82,17 +84,17 @@ def read_split_source(source: SplitSource, synset: str) -> dict[str, list[str]]:
     A single DeepSDF file ({"ShapeNetV2": {synset: [ids]}}) is one split: it becomes train.
     """
     if source is None:
-        raise ValueError("no split source given; use hash_split for a split without a file")
+        raise InputError("no split source given; use hash_split for a split without a file")
     if isinstance(source, Mapping):
         unknown = set(source) - set(SPLITS)
         if unknown:
-            raise ValueError(f"split files given for unknown splits {sorted(unknown)}; use {SPLITS}")
+            raise InputError(f"split files given for unknown splits {sorted(unknown)}; use {SPLITS}")
         return {s: _ids_of(_read_json(Path(source[s])), synset, Path(source[s])) if s in source else [] for s in SPLITS}
     path = Path(source).expanduser()
     if path.is_dir():
         files = {s: path / f"{s}.json" for s in SPLITS if (path / f"{s}.json").is_file()}
         if "train" not in files:
-            raise FileNotFoundError(f"split folder {path} has no train.json (expected train/val/test.json)")
+            raise MissingInputError(f"split folder {path} has no train.json (expected train/val/test.json)")
         return read_split_source(files, synset)
     data = _read_json(path)
     if isinstance(data, dict) and set(data) & set(SPLITS):
@@ -102,11 +104,11 @@ def read_split_source(source: SplitSource, synset: str) -> dict[str, list[str]]:
 
 def _read_json(path: Path) -> Any:
     if not path.is_file():
-        raise FileNotFoundError(f"split file {path} does not exist")
+        raise MissingInputError(f"split file {path} does not exist")
     try:
         return json.loads(path.read_text())
     except ValueError as err:
-        raise ValueError(f"split file {path} is not valid JSON ({err})") from err
+        raise InputError(f"split file {path} is not valid JSON ({err})") from err
 
 
 def _ids_of(data: Any, synset: str, path: Path) -> list[str]:
@@ -118,9 +120,9 @@ def _ids_of(data: Any, synset: str, path: Path) -> list[str]:
             if key in data:
                 by_synset = data[key]
                 if synset not in by_synset:
-                    raise ValueError(f"{path}: {key} lists synsets {sorted(by_synset)}, not {synset}")
+                    raise InputError(f"{path}: {key} lists synsets {sorted(by_synset)}, not {synset}")
                 return [str(i) for i in by_synset[synset]]
-    raise ValueError(
+    raise InputError(
         f"{path}: unrecognised split format. Expected a JSON list of ids, DeepSDF's "
         f'{{"ShapeNetV2": {{"{synset}": [ids]}}}}, or {{"train": [...], "val": [...], "test": [...]}}'
     )
@@ -139,11 +141,11 @@ def hash_split(ids: Sequence[str], fractions: Sequence[float] = DEFAULT_FRACTION
     (with a warning) so train keeps the rest.
     """
     if len(fractions) != 3 or any(f < 0 for f in fractions) or fractions[0] <= 0:
-        raise ValueError(f"fractions must be (train > 0, val >= 0, test >= 0), got {tuple(fractions)}")
+        raise InputError(f"fractions must be (train > 0, val >= 0, test >= 0), got {tuple(fractions)}")
     ordered = sorted(dict.fromkeys(ids), key=lambda i: (id_hash(i), i))
     n = len(ordered)
     if n == 0:
-        raise ValueError("cannot split an empty list of model ids")
+        raise InputError("cannot split an empty list of model ids")
     total = float(sum(fractions))
     n_val, n_test = (max(1, round(n * f / total)) if f > 0 else 0 for f in fractions[1:])
     if n == 1:

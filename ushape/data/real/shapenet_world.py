@@ -37,6 +37,7 @@ from ushape.data.real import shapenet, shapenet_rendering
 from ushape.data.real.mesh_sdf import MeshProcessingError, load_mesh, normalise_mesh, previous_signs, sample_mesh_sdf
 from ushape.data.rendering import render_views
 from ushape.data.shape_artifacts import artifact_problems, r2n2_frame
+from ushape.errors import InputError
 
 log = logging.getLogger(__name__)
 
@@ -80,9 +81,9 @@ class ShapeNetWorld:
     ) -> None:
         for name, value in (("samples_per_shape", samples_per_shape), ("n_views", n_views), ("image_size", image_size)):
             if int(value) < 1:
-                raise ValueError(f"{name} must be positive, got {value}")
+                raise InputError(f"{name} must be positive, got {value}")
         if max_shapes is not None and int(max_shapes) < 1:
-            raise ValueError(f"max_shapes must be positive or None, got {max_shapes}")
+            raise InputError(f"max_shapes must be positive or None, got {max_shapes}")
         self.synset = shapenet.synset_id(category)
         self.root = Path(root).expanduser().resolve()
         self.layout, self.available = shapenet.list_models(self.root, self.synset)
@@ -90,7 +91,7 @@ class ShapeNetWorld:
         if self.renderings_root:
             shapenet_rendering.check_root(self.renderings_root, self.synset)
             if int(n_views) > 24:
-                raise ValueError(f"ShapeNetRendering has 24 views per model; n_views={n_views} is too many")
+                raise InputError(f"ShapeNetRendering has 24 views per model; n_views={n_views} is too many")
         self.cache_root = Path(cache_root).expanduser()
         self.split_file = split_file
         self.num_workers = int(num_workers)
@@ -158,7 +159,7 @@ class ShapeNetWorld:
         atomic.write_json(root / SKIPPED_FILE, skipped)
         splits = {s: [m for m in planned[s] if m not in skipped] for s in SPLITS}
         if not splits["train"]:
-            raise ValueError(
+            raise InputError(
                 f"no usable training shape in {self.synset} under {self.root}: {len(skipped)} skipped "
                 f"(see {root / SKIPPED_FILE}); check the split file and the dataset layout"
             )
