@@ -39,7 +39,7 @@ from ushape.evaluation.uncertainty_protocol import (
 )
 from ushape.evaluation.views import encode_views
 from ushape.propagation import SDF_CLAMP
-from ushape.reconstruction.depth_implicit import DEPTH_METHODS
+from ushape.propagation.depth_implicit import DEPTH_METHODS
 
 log = logging.getLogger(__name__)
 

@@ -25,8 +25,8 @@ from omegaconf import OmegaConf
 
 from ushape.fusion.rules import check_k
 from ushape.mesh.extraction import EmptySurfaceError
+from ushape.propagation.depth_implicit import DEPTH_METHODS
 from ushape.propagation.mesh import METHODS
-from ushape.reconstruction.depth_implicit import DEPTH_METHODS
 from ushape.reconstruction.pipeline import ReconstructionSettings, reconstruct
 from ushape.reconstruction.predictor import collect_inputs, load_predictor
 from ushape.reconstruction.temperature_store import fit_and_store_temperature

@@ -27,14 +27,14 @@ from ushape.data.layout import VIEWS_FILE
 from ushape.decoder.query import code_sdf_fn, frozen
 from ushape.fusion.rules import FusedCode
 from ushape.mesh.extraction import extract_mesh
+from ushape.propagation.depth_implicit import DEPTH_METHODS, depth_stats
 from ushape.propagation.mesh import METHODS, vertex_uncertainty
 from ushape.propagation.monte_carlo import sample_codes
+from ushape.propagation.sphere_tracing import DepthStats
 from ushape.recalibration import apply_temperature
-from ushape.reconstruction.depth_implicit import DEPTH_METHODS, depth_stats
 from ushape.reconstruction.export import DEFAULT_CMAP, coloured_mesh, write_mesh_files
 from ushape.reconstruction.figures import depth_figure, overview_figure
 from ushape.reconstruction.predictor import Predictor
-from ushape.reconstruction.sphere_tracing import DepthStats
 from ushape.reconstruction.visibility import hidden_over_visible
 
 CANONICAL_CAMERA = {"azimuth_deg": 45.0, "elevation_deg": 27.5, "distance": 2.8, "fov_deg": R2N2_FOV_DEG}
