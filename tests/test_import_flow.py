@@ -14,7 +14,7 @@ PACKAGE = ROOT / "ushape"
 
 # Building blocks (file I/O, run-folder names, checkpoints, building configured objects), then the
 # data's way: procedural shapes, datasets and rendering, grids and marching cubes, the scoring maths,
-# stage 1, stage 2, fusion, propagation, recalibration, reconstruction, next-best-view planning, and the
+# stage 1, stage 2, fusion, propagation, recalibration, refinement on the views, reconstruction, next-best-view planning, and the
 # commands built on all of them, with the `ushape` command that runs each of them last.
 FLOW = (
     "torchvision_cpu",
@@ -31,6 +31,7 @@ FLOW = (
     "fusion",
     "propagation",
     "recalibration",
+    "refinement",
     "reconstruction",
     "planning",
     "training",
