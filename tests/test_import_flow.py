@@ -14,8 +14,8 @@ PACKAGE = ROOT / "ushape"
 
 # Building blocks (file I/O, run-folder names, checkpoints, building configured objects), then the
 # data's way: procedural shapes, datasets and rendering, grids and marching cubes, the scoring maths,
-# stage 1, stage 2, fusion, propagation, recalibration, refinement on the views, reconstruction, next-best-view planning, and the
-# commands built on all of them, with the `ushape` command that runs each of them last.
+# stage 1, stage 2, fusion, propagation, recalibration, refinement on the views, reconstruction,
+# next-best-view planning, and the commands built on all of them, with the `ushape` command that runs each of them last.
 FLOW = (
     "torchvision_cpu",
     "atomic",

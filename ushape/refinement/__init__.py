@@ -1,4 +1,4 @@
-"""The fused code refined on what calibrated views show (masks, depth): a MAP and a full-covariance Laplace posterior."""
+"""The fused code refined on what calibrated views show (masks, depth): MAP and full-covariance Laplace posterior."""
 
 from ushape.refinement.observation import ObservationSettings, residuals
 from ushape.refinement.posterior import MODES, Posterior, RefineSettings, refine
