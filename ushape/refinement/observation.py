@@ -38,7 +38,7 @@ class ObservationSettings:
     """How views are compared with a code; every field is a knob of conf/refine/*.yaml."""
 
     tau: float = 0.01  # silhouette sharpness, in SDF units (the unit-sphere frame)
-    coarse: int = 48  # ray samples for the minimum SDF ...
+    coarse: int = 32  # ray samples for the minimum SDF ...
     fine: int = 8  # ... and samples around the coarse argmin
     band: float = 7.0  # rows with |m| / tau past this have p (1 - p) < 1e-3: no Jacobian
     size: int = 32  # rays per image side (every stride-th pixel)

@@ -98,7 +98,7 @@ def score_demo(
             if record.is_file():
                 summary = json.loads(record.read_text())
                 mesh = trimesh.load(folder / "mesh.ply", process=False)
-                code = torch.tensor(summary["fused"]["mu"])
+                code = torch.tensor((summary.get("refinement") or summary["fused"])["mu"])
                 shape_scores[folder.name] = _code_scores(decoder, code, reference, mesh)
         if codes is not None and shape_id in codes.shape_ids:
             try:
