@@ -4,6 +4,8 @@ Its silhouette and depth are analytic in z, so the MAP code and the Laplace cova
 (Sigma^-1 + J^T W J)^-1 are known; code dimensions the radius ignores keep the prior variance.
 """
 
+import dataclasses
+
 import pytest
 import torch
 from torch import nn
@@ -92,10 +94,28 @@ def test_masks_recover_the_radius_and_the_analytic_laplace_covariance():
     assert torch.allclose(post.cov[:2, 2:], torch.zeros(2, 2))
 
 
-def test_depth_recovers_the_radius_and_the_analytic_laplace_covariance():
+def test_surface_depth_recovers_the_radius_and_the_analytic_laplace_covariance():
     decoder = SphereDecoder()
     views = [sphere_view(K, w2c, radius(Z_TRUE)) for K, w2c in cameras(2)]
     settings = RefineSettings(mode="depth", sigma_mask=1e4, sigma_depth=0.01, observation=OBS)
+    mu, var = torch.zeros(4), torch.tensor([1.0, 1.0, 0.5, 2.0])
+    post = refine(decoder, mu, var, views, settings)
+    assert post.fallback is None
+    assert radius(post.mu) == pytest.approx(radius(Z_TRUE), abs=1e-4)
+    # r = |x_obs| - r(z) at every back-projected return: dr/dz = -c on each, N returns.
+    returns = sum(int((v.depth > 0).sum()) for v in views)
+    assert post.rows["depth"] == returns
+    precision = torch.diag(1.0 / var.double())
+    analytic = torch.linalg.inv(precision + returns / settings.sigma_depth**2 * torch.outer(C, C))
+    assert torch.allclose(post.cov.double(), analytic, rtol=1e-3, atol=1e-9)
+    assert post.cov[2, 2] == pytest.approx(0.5) and post.cov[3, 3] == pytest.approx(2.0)
+
+
+def test_traced_depth_recovers_the_radius_and_the_analytic_laplace_covariance():
+    decoder = SphereDecoder()
+    views = [sphere_view(K, w2c, radius(Z_TRUE)) for K, w2c in cameras(2)]
+    traced = dataclasses.replace(OBS, depth_residual="trace")
+    settings = RefineSettings(mode="depth", sigma_mask=1e4, sigma_depth=0.01, observation=traced)
     mu, var = torch.zeros(4), torch.tensor([1.0, 1.0, 0.5, 2.0])
     post = refine(decoder, mu, var, views, settings)
     assert post.fallback is None and post.rows["depth"] > 100

@@ -7,9 +7,17 @@ dp/dz = -p (1 - p) / tau * ds/dz(x*, z) (the envelope theorem: the argmin's own 
 change m to first order). Only pixels within `band` tau of the surface get a Jacobian; elsewhere
 p (1 - p) is below 1e-3 and the row is 0.
 
-Depth: sphere-trace the code's surface (`ushape.propagation.sphere_tracing`), and differentiate the
-hit implicitly, dt/dz = -(ds/dz) / (ds/dx . d) (`ushape.propagation.depth_implicit`). The residual
-exists where the trace hits and the view has a depth return; silhouettes handle the rest.
+Depth, two models (`depth_residual`):
+  - "surface" (the default; DeepSDF's shape completion, DSP-SLAM's surface term): each depth return,
+    back-projected to the point x = o + d_obs d, should lie on the surface: r = s(x, z), dr/dz = ds/dz(x, z).
+    Exact Jacobian, no tracing, and no blow-up at grazing rays.
+  - "trace": sphere-trace the code's surface (`ushape.propagation.sphere_tracing`) and compare the
+    rendered depth, differentiated implicitly, dt/dz = -(ds/dz) / (ds/dx . d)
+    (`ushape.propagation.depth_implicit`), where the trace hits and the view has a return. On the
+    trained chairs decoder this model measured worse (docs/refinement.md): a trace that reaches another
+    part than the view saw, and the grazing-ray sensitivity, pull the code to shapes the masks allow
+    but the depths do not.
+Silhouettes handle the pixels without a return.
 
 Pixels marked unobserved carry no residual. Rays are taken on a regular sub-grid of the image
 (every `stride`-th pixel per axis) so a 64 px view and a 256 px view cost alike.
@@ -46,6 +54,7 @@ class ObservationSettings:
     trace_eps: float = 2e-3
     bound: float = 1.0
     min_cosine: float = MIN_COSINE
+    depth_residual: str = "surface"  # "surface" | "trace" (see the module docstring)
 
 
 class Residuals(NamedTuple):
@@ -142,11 +151,20 @@ def depth_residuals(
     settings: ObservationSettings,
     latent_size: int,
 ) -> tuple[Tensor, Tensor]:
-    """Traced minus observed depth r [R'] where the code's surface and the view both return, and dt/dz [R', D]."""
+    """Depth residuals r [R'] and dr/dz [R', D]: the SDF at the back-projected returns ("surface"), or traced
+    minus observed depth where the code's surface and the view both return ("trace")."""
     if view.depth is None:
         return torch.zeros(0), torch.zeros(0, latent_size)
     origins, directions, pixels = view_rays(view, settings)
     observed = view.depth.reshape(-1)[pixels].float()
+    if settings.depth_residual == "surface":
+        rows = (observed > 0).nonzero().squeeze(1)
+        if rows.numel() == 0:
+            return torch.zeros(0), torch.zeros(0, latent_size)
+        s, grad_z, _ = gradients(origins[rows] + observed[rows, None] * directions[rows])
+        return s, grad_z
+    if settings.depth_residual != "trace":
+        raise ValueError(f"depth_residual must be 'surface' or 'trace', got {settings.depth_residual!r}")
     t, hit = sphere_trace(
         lambda x, _code: sdf(x), origins, directions, 1, settings.trace_steps, settings.trace_eps, settings.bound
     )
