@@ -106,3 +106,30 @@ def test_acquired_views_are_cropped_as_the_evaluation_crops_them(setting, sphere
     assert mu.shape == (3,) and torch.equal(encode(3)[0], mu)  # cached: one encoding per candidate
     with pytest.raises(ValueError, match="min_scale"):
         ViewEncoder(predictor, candidates, min_scale=0.0)
+
+
+def correlated_fusion(mu, var):
+    """Bayesian fusion returned as a full covariance: the same variances, every pair of dimensions correlated 0.9."""
+    fused = fuse_bayesian(mu, var)
+    d = fused.var.shape[-1]
+    correlation = torch.full((d, d), 0.9) + 0.1 * torch.eye(d)
+    std = fused.var.sqrt()
+    return fused._replace(var=std[:, None] * correlation * std[None, :])
+
+
+def test_the_loop_plans_with_a_full_covariance(setting):
+    """The ellipsoid's SDF depends on z_0 alone, so its variance is J_0^2 Sigma_00 whatever the correlations:
+    a full covariance with the diagonal fusion's variances must plan the same views on the same scores."""
+    predictor, candidates, encode = setting
+    diagonal = run(setting, "uncertainty", n_views=3)
+    full = active_reconstruction(
+        candidates, encode, build_strategy("uncertainty"), predictor.decoder, 3, 0, correlated_fusion, resolution=24
+    )
+    assert [s.view for s in full] == [s.view for s in diagonal]
+    d = diagonal[0].var.shape[0]
+    for a, b in zip(diagonal, full):
+        assert b.var.shape == (d, d)
+        torch.testing.assert_close(b.var.diagonal(), a.var, rtol=1e-6, atol=0)
+        if a.scores is not None:
+            np.testing.assert_allclose(b.scores, a.scores, rtol=1e-5)
+            np.testing.assert_allclose(b.surface.variance, a.surface.variance, rtol=1e-5, atol=1e-12)

@@ -208,3 +208,41 @@ def test_depth_stats_dispatches_and_bad_input_is_a_value_error():
         depth_uncertainty_implicit(PlaneDecoder(), mu, var, K, w2c, (9, 9), min_cosine=2.0)
     with pytest.raises(ValueError, match=r"\[M, D\]"):
         depth_uncertainty(PlaneDecoder(), mu, K, w2c, (9, 9))
+
+
+# A full covariance over the plane's code: wide along two directions orthogonal to A, narrow along A, so the
+# depth std (along A) is a fraction of what the variances on the diagonal alone would give.
+B = torch.tensor([[0.2, 0.0], [0.0, 0.2], [-0.1, 0.05]])
+COV = B @ B.T + 1e-3 * torch.eye(3)
+
+
+def test_plane_depth_std_under_a_full_covariance_is_the_analytic_one_and_mc_agrees():
+    size = 17
+    K, w2c = look_at(0.0, 0.0, 3.0, 40.0, size)
+    origins, directions = rays(K, w2c, size)
+    n_dot_d = (directions @ NORMAL.double()).reshape(size, size)
+    a = A.double()
+    # t is linear in z with dt/dz = a / (n.d): std sqrt(a^T Sigma a) / |n.d|
+    std = torch.sqrt(a @ COV.double() @ a) / n_dot_d.abs()
+    diagonal_only = torch.sqrt((a**2 * COV.diagonal().double()).sum()) / n_dot_d.abs()
+    assert float((diagonal_only / std).min()) > 4  # what reading only the diagonal would report
+    implicit = depth_uncertainty_implicit(PlaneDecoder(), MU, COV, K, w2c, (size, size), steps=60, eps=1e-6)
+    hit = implicit.hit_rate > 0
+    assert hit.sum() > 100
+    assert torch.allclose(implicit.std[hit].double(), std[hit], rtol=1e-4)
+    codes = sample_codes(MU, COV, 4000, torch.Generator().manual_seed(0))
+    mc = depth_uncertainty(PlaneDecoder(), codes, K, w2c, (size, size), steps=60, eps=1e-6)
+    every = (mc.hit_rate == 1) & hit
+    assert every.sum() > 100
+    assert torch.allclose(mc.std[every].double(), std[every], rtol=0.04)  # 1/sqrt(2M) = 1.1 % per std
+
+
+def test_a_diagonal_full_covariance_gives_the_diagonal_depth_std():
+    decoder, code = sdf_like_decoder(2)
+    var = torch.linspace(1e-6, 4e-6, 64)
+    K, w2c = look_at(30.0, 27.5, 2.8, R2N2_FOV_DEG, 16)
+    diagonal, full = (depth_uncertainty_implicit(decoder, code, v, K, w2c, (16, 16)) for v in (var, torch.diag(var)))
+    assert torch.equal(diagonal.hit_rate, full.hit_rate) and diagonal.hit_rate.sum() > 20
+    assert torch.equal(diagonal.mean.isnan(), full.mean.isnan())
+    hit = diagonal.hit_rate > 0
+    torch.testing.assert_close(full.std[hit], diagonal.std[hit], rtol=1e-6, atol=0)

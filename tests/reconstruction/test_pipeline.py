@@ -11,6 +11,7 @@ from fake_world import write_sdf
 from ushape.data.cameras import camera_centre
 from ushape.data.layout import WorldIndex
 from ushape.fusion import BayesianKFusion
+from ushape.propagation.monte_carlo import sample_codes
 from ushape.reconstruction.cli import build_fusion, main
 from ushape.reconstruction.export import read_glb_std, read_ply_std
 from ushape.reconstruction.pipeline import ReconstructionSettings, reconstruct, view_camera
@@ -169,18 +170,47 @@ def test_depth_method_mc_and_implicit_both_run_and_the_summary_says_which(
         main([str(views[0]), "--depth-method", "sampled"])
 
 
-def full_covariance_propagates() -> bool:
-    """Whether the propagation consumers take a latent covariance [D, D] (refined meshes need it)."""
-    from ushape.decoder.query import check_latent_gaussian
+class CorrelatedFusion:
+    """Bayesian-2 fusion returned as a full covariance: z_0's variance doubled, every pair correlated 0.8."""
 
-    try:
-        check_latent_gaussian(torch.zeros(2), torch.eye(2))
-    except ValueError:
-        return False
-    return True
+    name = "bayesian-2-full"
+
+    def __call__(self, mu, var):
+        fused = BayesianKFusion(k=2)(mu, var)
+        std = fused.var.sqrt() * torch.tensor([2.0**0.5] + [1.0] * (len(fused.var) - 1))
+        correlation = torch.full((len(std), len(std)), 0.8) + 0.2 * torch.eye(len(std))
+        return fused._replace(var=std[:, None] * correlation * std[None, :])
 
 
-@pytest.mark.skipif(not full_covariance_propagates(), reason="propagation does not take a full covariance yet")
+@pytest.mark.parametrize("uncertainty, depth_method", [("linearised", "implicit"), ("mc", "mc")])
+def test_reconstruct_takes_a_full_covariance(tiny_run, sphere_predictor, tmp_path, uncertainty, depth_method):
+    """The sphere's SDF reads z_0 alone: std = 0.1 (1 + x) sqrt(Sigma_00) linearised, and with MC the same with
+    the std of z_0 over the codes drawn from the full covariance (the run's first draw from its seed)."""
+    views = sorted((tiny_run["world"] / "renders" / "test_0").glob("*.png"))
+    settings = ReconstructionSettings(
+        resolution=24, uncertainty=uncertainty, n_samples=20, depth_size=16, depth_method=depth_method, depth_steps=40
+    )
+    fusion = CorrelatedFusion()
+    summary = reconstruct(sphere_predictor, views, fusion, tmp_path / "out", settings)
+    mu, var = sphere_predictor.encode(sphere_predictor.load_images(views)[0])
+    fused = fusion(mu, var)
+    cov = fused.var
+    assert summary["fused"]["trace_var"] == pytest.approx(float(torch.trace(cov)), rel=1e-6)
+    assert summary["fused"]["covariance"] == "full"
+    import trimesh
+
+    vertices = trimesh.load(summary["files"]["ply"], process=False).vertices
+    spread = float(cov[0, 0]) ** 0.5
+    if uncertainty == "mc":
+        spread = float(sample_codes(fused.mu, cov, 20, torch.Generator().manual_seed(settings.seed))[:, 0].std())
+    expected = 0.1 * (1 + vertices[:, 0]) * spread
+    np.testing.assert_allclose(read_ply_std(summary["files"]["ply"]), expected, rtol=1e-3, atol=1e-6)
+    for view in summary["views"]:
+        with np.load(view["depth"]["npz"]) as depth:
+            hit = depth["hit_rate"] > 0
+            assert hit.any() and np.isfinite(depth["std"][hit]).all() and (depth["std"][hit] > 0).all()
+
+
 def test_refine_masks_on_renders_records_the_refinement_and_meshes_the_posterior(tiny_run, sphere_predictor, tmp_path):
     views = sorted((tiny_run["world"] / "renders" / "test_0").glob("*.png"))[:2]
     settings = dataclasses.replace(SMALL, refine="masks", refine_size=12)

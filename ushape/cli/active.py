@@ -24,6 +24,7 @@ from PIL import Image
 
 from ushape import atomic
 from ushape.data.world import open_world
+from ushape.decoder.latent_gaussian import latent_trace
 from ushape.evaluation.active import start_view
 from ushape.evaluation.code_metrics import Reconstructor
 from ushape.evaluation.plots import save_figure
@@ -140,7 +141,7 @@ def write_steps(
             "view": step.view,
             "azimuth": float(angles[step.view, 0]),
             "elevation": float(angles[step.view, 1]),
-            "trace": float(step.var.sum()),
+            "trace": float(latent_trace(step.var)),
             "iou": float(scores["iou"]),
             "cd": float(scores["cd"]),
         }

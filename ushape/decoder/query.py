@@ -15,6 +15,7 @@ from torch import Tensor, nn
 from torch.nn.utils import parametrize
 
 from ushape.decoder.folded import fold_code
+from ushape.decoder.latent_gaussian import check_covariance, is_full_covariance
 from ushape.mesh.extraction import DEFAULT_CHUNK
 
 Decoder = Callable[[Tensor, Tensor], Tensor]  # (xyz [..., 3], z [..., D]) -> sdf [...]
@@ -75,14 +76,20 @@ def code_sdf_fn(decoder: nn.Module, code: Tensor, bf16: bool = False) -> Callabl
 
 
 def check_latent_gaussian(mu: Tensor, var: Tensor) -> None:
-    """Raise a ValueError unless mu, var are one diagonal Gaussian over the latent code: [D] each, var >= 0."""
-    if mu.ndim != 1 or mu.shape != var.shape:
+    """Raise a ValueError unless mu, var are one Gaussian over the latent code: mu [D] with var [D] >= 0
+    (diagonal) or var [D, D] (a full covariance: symmetric, positive semi-definite, `check_covariance`)."""
+    if var.ndim == 2 and var.shape[0] != var.shape[1]:
+        raise ValueError(f"a full covariance var must be square [D, D], got {tuple(var.shape)}")
+    if mu.ndim != 1 or var.shape not in (mu.shape, mu.shape * 2):
         raise ValueError(
-            f"expected one latent Gaussian with mu [D] and var [D], got {tuple(mu.shape)} and {tuple(var.shape)}"
+            f"expected one latent Gaussian with mu [D] and var [D] (or a full covariance [D, D]), "
+            f"got {tuple(mu.shape)} and {tuple(var.shape)}"
         )
     if not (torch.isfinite(mu).all() and torch.isfinite(var).all()):
         raise ValueError("mu or var holds NaN/inf; the latent Gaussian must be finite")
-    if (var < 0).any():
+    if is_full_covariance(var):
+        check_covariance(var)
+    elif (var < 0).any():
         raise ValueError("var must be >= 0 (a variance, not a log-variance or a standard deviation)")
 
 

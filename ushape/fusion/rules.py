@@ -19,7 +19,7 @@ class FusedCode(NamedTuple):
     """A fused latent Gaussian and the views it was built from."""
 
     mu: Tensor  # [..., D]
-    var: Tensor  # [..., D] diagonal covariance
+    var: Tensor  # [..., D] diagonal covariance (these rules); a posterior refined on the views holds [D, D]
     kept: Tensor  # [..., K] long, view indices in ascending order
 
 

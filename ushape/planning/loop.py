@@ -31,7 +31,7 @@ from ushape.propagation.field import decode_field
 from ushape.propagation.linearised import propagate_linearised
 
 Encode = Callable[[int], tuple[Tensor, Tensor]]  # candidate index -> (mu [D], var [D]) of its acquired image
-Fusion = Callable[[Tensor, Tensor], FusedCode]  # (mu [V, D], var [V, D]) -> fused
+Fusion = Callable[[Tensor, Tensor], FusedCode]  # (mu [V, D], var [V, D]) -> fused (var [D] or [D, D])
 
 
 @dataclass(frozen=True)
@@ -96,7 +96,7 @@ class Step:
 
     view: int
     mu: Tensor  # [D] fused mean after this view
-    var: Tensor  # [D] fused variance after this view
+    var: Tensor  # [D] fused variance after this view, or [D, D] where the fusion returns a full covariance
     scores: np.ndarray | None = None  # [C] the strategy's scores when this view was chosen (None: the start)
     surface: Surface | None = field(default=None, repr=False)  # the surface those scores were computed on
 

@@ -2,7 +2,7 @@
 
 from ushape.decoder.query import decode_points, frozen
 from ushape.propagation.field import BandField, decode_field, field_uncertainty, narrow_band_field
-from ushape.propagation.linearised import propagate_linearised
+from ushape.propagation.linearised import latent_variance, propagate_linearised
 from ushape.propagation.mesh import METHODS, SDF_CLAMP, grid_points, propagate, propagate_to_sdf, vertex_uncertainty
 from ushape.propagation.monte_carlo import propagate_mc
 
@@ -15,6 +15,7 @@ __all__ = [
     "field_uncertainty",
     "frozen",
     "grid_points",
+    "latent_variance",
     "narrow_band_field",
     "propagate",
     "propagate_linearised",

@@ -5,7 +5,7 @@ identity in z gives the depth's sensitivity to the code,
 
     dt/dz = -(ds/dz) / (ds/dx . d),
 
-and the first-order (delta-method) depth variance sum_k (dt/dz_k)^2 var_k, as
+and the first-order (delta-method) depth variance (dt/dz) Sigma (dt/dz)^T (`latent_variance`), as
 `ushape.propagation.linearised` does for the SDF. pixel_rays' directions have camera-z component 1,
 so t is the depth. Exact where the depth is linear in the code (a plane whose offset is linear in
 z); elsewhere good while the latent spread moves the surface little, i.e. away from silhouettes.
@@ -31,7 +31,7 @@ from ushape.decoder.folded import fold_code
 from ushape.decoder.query import Decoder, check_code_size, check_latent_gaussian, frozen
 from ushape.encoder.latent_metrics import spearman_correlation
 from ushape.mesh.extraction import DEFAULT_CHUNK
-from ushape.propagation.linearised import sdf_gradients
+from ushape.propagation.linearised import latent_variance, sdf_gradients
 from ushape.propagation.sphere_tracing import DepthStats, camera_rays, codes_sdf, depth_uncertainty, sphere_trace
 
 DEPTH_METHODS = ("implicit", "mc")
@@ -57,7 +57,7 @@ def depth_sensitivity(
 def depth_uncertainty_implicit_views(
     decoder: Decoder,
     mu: Tensor,  # [D]
-    var: Tensor,  # [D]
+    var: Tensor,  # [D] or [D, D] (a full covariance)
     cameras: Sequence[Camera],  # V x (K [3, 3] for an image of image_hw, world_to_cam [4, 4])
     image_hw: tuple[int, int],
     steps: int = 50,
@@ -95,7 +95,7 @@ def depth_uncertainty_implicit_views(
             else:
                 _, grad_z, grad_x = folded.sdf_and_gradients(points)
             sensitivity = depth_sensitivity(grad_z.float(), grad_x.float(), directions[ray], min_cosine)
-            variance[start : start + ray.shape[0]] = sensitivity.square() @ var
+            variance[start : start + ray.shape[0]] = latent_variance(sensitivity, var)
     mean = torch.where(hit, t, torch.full_like(t, float("nan")))
     std = torch.full_like(t, float("nan"))
     std[pixels] = variance.sqrt()
@@ -106,7 +106,7 @@ def depth_uncertainty_implicit_views(
 def depth_uncertainty_implicit(
     decoder: Decoder,
     mu: Tensor,  # [D]
-    var: Tensor,  # [D]
+    var: Tensor,  # [D] or [D, D] (a full covariance)
     K: np.ndarray,  # [3, 3] for an image of image_hw
     world_to_cam: np.ndarray,  # [4, 4]
     image_hw: tuple[int, int],
@@ -124,7 +124,7 @@ def depth_uncertainty_implicit(
 def depth_stats(
     decoder: Decoder,
     mu: Tensor,  # [D]
-    var: Tensor,  # [D]
+    var: Tensor,  # [D] or [D, D] (a full covariance)
     cameras: Sequence[Camera],  # V x (K [3, 3], world_to_cam [4, 4])
     image_hw: tuple[int, int],
     method: str = "implicit",

@@ -42,7 +42,7 @@ class BandField(NamedTuple):
 def narrow_band_field(
     decoder: Decoder,
     mu: Tensor,  # [D]
-    var: Tensor,  # [D]
+    var: Tensor,  # [D] or [D, D] (a full covariance)
     resolution: int,
     method: str = "linearised",
     n_samples: int = 10,
@@ -100,7 +100,7 @@ def surface_cell_corners(sdf: Tensor, widen: int = 0) -> Tensor:  # [N, N, N] ->
 def field_uncertainty(
     decoder: Decoder,
     mu: Tensor,  # [D]
-    var: Tensor,  # [D]
+    var: Tensor,  # [D] or [D, D] (a full covariance)
     resolution: int,
     method: str = "linearised",
     n_samples: int = 10,

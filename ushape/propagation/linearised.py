@@ -1,4 +1,7 @@
-"""First-order (linearised) propagation: var_s = J diag(var) J^T with J = ds/dz at the mean code."""
+"""First-order (linearised) propagation: var_s = J Sigma J^T with J = ds/dz at the mean code.
+
+Sigma is diag(var) for a var [D] or the full covariance var [D, D] (`latent_variance`).
+"""
 
 from __future__ import annotations
 
@@ -6,6 +9,7 @@ import torch
 from torch import Tensor
 
 from ushape.decoder.folded import fold_code
+from ushape.decoder.latent_gaussian import covariance_factor, is_full_covariance
 from ushape.decoder.query import (
     Decoder,
     check_chunk,
@@ -17,6 +21,22 @@ from ushape.decoder.query import (
     output_dtype,
 )
 from ushape.mesh.extraction import DEFAULT_CHUNK
+
+
+def latent_variance(
+    jacobian: Tensor,  # [P, D]
+    var: Tensor,  # [D] diagonal, or [D, D] full covariance
+) -> Tensor:  # [P]
+    """First-order variance of P outputs, row by row J_p Sigma J_p^T: sum_d J_pd^2 var_d for a diagonal var.
+
+    A full covariance goes through its square root L (`covariance_factor`): ||J_p L||^2, one [P, D] x
+    [D, D] product and never a [P, D, D] tensor. It is >= 0 by construction and keeps its relative
+    accuracy where the posterior is far narrower along J_p than its largest variance (the product
+    (J Sigma * J).sum(-1) loses it there, by float32 rounding of the large terms).
+    """
+    if not is_full_covariance(var):
+        return jacobian.square() @ var
+    return (jacobian @ covariance_factor(var).to(jacobian.dtype)).square().sum(-1)
 
 
 def sdf_gradients(
@@ -59,12 +79,12 @@ def latent_jacobian(
 def propagate_linearised(
     decoder: Decoder,
     mu: Tensor,  # [D]
-    var: Tensor,  # [D]
+    var: Tensor,  # [D] or [D, D]
     points: Tensor,  # [P, 3]
     chunk: int = DEFAULT_CHUNK,
     bf16: bool = False,
 ) -> tuple[Tensor, Tensor]:
-    """SDF mean f(x, mu) [P] and first-order variance sum_d (ds/dz_d)^2 var_d [P] at points.
+    """SDF mean f(x, mu) [P] and first-order variance J Sigma J^T [P] at points (`latent_variance`).
 
     Exact for a decoder linear in z; for the real decoder it is the local (delta-method)
     approximation, good while the latent spread stays where the decoder is near-linear.
@@ -89,5 +109,5 @@ def propagate_linearised(
                 with torch.no_grad():
                     sdf, jacobian = folded.sdf_and_jacobian(block)
             mean[start:stop] = sdf.to(dtype)
-            variance[start:stop] = jacobian.to(dtype).square() @ var.to(dtype)
+            variance[start:stop] = latent_variance(jacobian.to(dtype), var.to(dtype))
     return mean, variance

@@ -24,7 +24,7 @@ def grid_points(resolution: int, dtype: torch.dtype = torch.float32, device: str
 def propagate(
     decoder: Decoder,
     mu: Tensor,  # [D]
-    var: Tensor,  # [D]
+    var: Tensor,  # [D] or [D, D] (a full covariance)
     points: Tensor,  # [P, 3]
     method: str = "mc",
     n_samples: int = 10,
@@ -45,7 +45,7 @@ def propagate(
 def vertex_uncertainty(
     decoder: Decoder,
     mu: Tensor,  # [D]
-    var: Tensor,  # [D]
+    var: Tensor,  # [D] or [D, D] (a full covariance)
     vertices: Tensor,  # [V, 3]
     method: str = "mc",
     n_samples: int = 10,
@@ -73,7 +73,7 @@ def propagate_to_sdf(
     clamp: float | None = SDF_CLAMP,
     bf16: bool = False,
 ) -> tuple[Tensor, Tensor]:
-    """SDF mean and variance [P] at points [P, 3] for one latent Gaussian (mu, var [D]), clamped values.
+    """SDF mean and variance [P] at points [P, 3] for one latent Gaussian (mu [D], var [D] or [D, D]), clamped values.
 
     Monte Carlo clamps every sample before its statistics; the linearised method clamps the mean
     and zeroes the variance where the mean is beyond the clamp (the clamp's derivative there is 0).

@@ -5,6 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from ushape.decoder.latent_gaussian import covariance_factor, is_full_covariance
 from ushape.decoder.query import (
     Decoder,
     check_chunk,
@@ -18,15 +19,21 @@ from ushape.decoder.query import (
 
 
 def sample_codes(mu: Tensor, var: Tensor, n_samples: int, generator: torch.Generator | None = None) -> Tensor:
-    """M codes z_m ~ N(mu, diag(var)) in latent space: mu, var [D] -> [M, D]."""
+    """M codes z_m ~ N(mu, Sigma) in latent space: mu [D], var [D] (Sigma = diag(var)) or [D, D] -> [M, D].
+
+    A full covariance maps the same standard normal draws through its square root L (z = mu + L eps,
+    `covariance_factor`), so a diagonal [D, D] covariance gives exactly the codes of its [D] form.
+    """
     eps = torch.randn(n_samples, mu.shape[-1], generator=generator, dtype=mu.dtype, device=mu.device)
+    if is_full_covariance(var):
+        return mu + eps @ covariance_factor(var).to(mu.dtype).T
     return mu + var.sqrt() * eps
 
 
 def propagate_mc(
     decoder: Decoder,
     mu: Tensor,  # [D]
-    var: Tensor,  # [D]
+    var: Tensor,  # [D] or [D, D]
     points: Tensor,  # [P, 3]
     n_samples: int = 10,
     generator: torch.Generator | None = None,

@@ -24,6 +24,7 @@ from torch import Tensor
 from ushape import atomic
 from ushape.data.cameras import R2N2_FOV_DEG, look_at
 from ushape.data.layout import VIEWS_FILE
+from ushape.decoder.latent_gaussian import is_full_covariance, latent_trace
 from ushape.decoder.query import code_sdf_fn, frozen
 from ushape.fusion.rules import FusedCode
 from ushape.mesh.extraction import extract_mesh
@@ -43,7 +44,7 @@ from ushape.refinement.inputs import input_views
 CANONICAL_CAMERA = {"azimuth_deg": 45.0, "elevation_deg": 27.5, "distance": 2.8, "fov_deg": R2N2_FOV_DEG}
 SUMMARY_FILE = "summary.json"
 
-Fusion = Callable[[Tensor, Tensor], FusedCode]  # (mu [V, D], var [V, D]) -> FusedCode
+Fusion = Callable[[Tensor, Tensor], FusedCode]  # (mu [V, D], var [V, D]) -> FusedCode (var [D] or [D, D])
 
 
 @dataclass(frozen=True)
@@ -298,7 +299,12 @@ def write_summary(
             for i, p in enumerate(paths)
         ],
         "skipped": [{"image": str(p), "reason": why} for p, why in skipped],
-        "fused": {"trace_var": float(fused.var.sum()), "kept": sorted(kept), "mu": fused.mu.tolist()},
+        "fused": {
+            "trace_var": float(latent_trace(fused.var)),
+            "covariance": "full" if is_full_covariance(fused.var) else "diagonal",
+            "kept": sorted(kept),
+            "mu": fused.mu.tolist(),
+        },
         "mesh": {
             "vertices": len(mesh.vertices),
             "faces": len(mesh.faces),

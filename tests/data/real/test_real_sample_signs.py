@@ -47,15 +47,16 @@ def test_signs_agree_with_official_voxels(model, voxel_file, rng):
     inside = sdf.inside(points)
     report = SignReport.of(sdf.signs)
     checked, truth = tolerant_truth(occupancy, index_to_model, points / scale + centre)
+    agreement = np.mean(inside[checked] == truth[checked])
+    assert checked.sum() > 3000 and agreement >= 0.99
     if has_interior(occupancy):
-        assert checked.sum() > 3000 and truth[checked].sum() > 300
-        assert np.mean(inside[checked] == truth[checked]) >= 0.99
+        assert truth[checked].sum() > 300
         assert report.confidence > 0.99
     else:
-        # Surface-only voxels: the mesh is open (IKEA_HENRIKSDAL has no back), its flood-filled voxels
-        # are a hollow shell, and we fill what the surface mostly surrounds. Which was meant cannot
-        # be known from the mesh; the report must say the signs rest on that judgement.
-        assert report.confidence < 0.9 and report.leak > 0.01
+        # Surface-only voxels: the mesh is open (IKEA_HENRIKSDAL has no back), so a flood fill from
+        # outside enters it and its voxels are a hollow shell. Reachability matches the shell; the
+        # winding number would fill the seat, so the report says the sign depends on the method.
+        assert report.confidence < 0.9 and report.winding_agreement < 0.9
 
 
 def test_shapenet_samples_match_binvox_in_normalised_frame(shapenet_sample, rng):

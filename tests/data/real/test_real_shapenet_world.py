@@ -9,8 +9,8 @@ from PIL import Image
 from ushape.data.cameras import camera_centre, format_metadata, metadata_to_cameras
 from ushape.data.layout import WorldIndex
 from ushape.data.real import shapenet_rendering
-from ushape.data.real.mesh_sdf import load_mesh, normalise_mesh
-from ushape.data.real.shapenet_world import ShapeNetWorld
+from ushape.data.real.mesh_sdf import load_mesh, normalise_mesh, sample_mesh_sdf
+from ushape.data.real.shapenet_world import SDF_STREAM, ShapeNetWorld
 from ushape.data.rendering import render_views
 from ushape.data.shape_artifacts import r2n2_frame
 
@@ -115,10 +115,11 @@ def test_missing_renders_skip_the_model(shapenet_tree, tmp_path):
 
 
 def test_real_sample_chairs_build(shapenet_sample, tmp_path):
+    world = ShapeNetWorld(
+        "chairs", str(shapenet_sample), str(tmp_path), samples_per_shape=5000, n_views=1, image_size=48
+    )
     with pytest.warns(UserWarning, match="val and test share"):
-        index = ShapeNetWorld(
-            "chairs", str(shapenet_sample), str(tmp_path), samples_per_shape=5000, n_views=1, image_size=48
-        ).build()
+        index = world.build()
     assert len(index.splits["train"]) == 2 and index.splits["val"] == index.splits["test"]
     for sid in index.shape_ids():
         with np.load(index.sdf_path(sid)) as samples:
@@ -127,6 +128,15 @@ def test_real_sample_chairs_build(shapenet_sample, tmp_path):
         assert record["layout"] == "v2" and record["scale"] > 0
         # How sure the signs are, for filtering: these three chairs are enclosed throughout.
         assert record["sdf_signs"]["samples"] == 5000 and record["sdf_signs"]["confidence"] > 0.99
+        # The world's samples are the standalone call's, seeded as the builder seeds each model.
+        job = world._job(index, "train", sid)
+        rng = np.random.default_rng(np.random.SeedSequence(job.seed, spawn_key=(SDF_STREAM,)))
+        mesh, _, _ = normalise_mesh(load_mesh(job.source))
+        alone, report = sample_mesh_sdf(mesh, 5000, rng)
+        with np.load(index.sdf_path(sid)) as samples:
+            for key in ("pos", "neg"):
+                np.testing.assert_array_equal(samples[key], alone[key])
+        assert report.as_dict() == record["sdf_signs"]
         with Image.open(index.image_path(sid, 0)) as image:
             alpha = np.asarray(image)[..., 3]
         assert 0.02 < (alpha > 0).mean() < 0.8

@@ -4,18 +4,18 @@ Real meshes are triangle soups: open, with inner faces, flipped or inconsistent 
 duplicated geometry. So the two halves of the SDF are computed separately:
 
 - Magnitude: exact point-to-triangle distance (libigl's AABB tree).
-- Sign: `ushape.data.real.mesh_signs`: the generalised winding number of the mesh after its patches
-  are oriented outward, with the ray-escape test deciding only where the winding number is
-  between 1/4 and 3/4. Unions of closed parts with open compartments between them, surfaces
-  with holes, flipped and non-manifold faces all get the signs a person would give them.
+- Sign: `ushape.data.real.mesh_signs`: inside when the point cannot be reached from outside
+  without crossing a face, the convention of ShapeNet's and Pix3D's official voxels, at 256
+  voxels along the mesh's longest side. Sealed hollows are inside, open compartments and
+  open models' insides outside; flipped, duplicated and non-manifold faces change nothing.
 - Normalisation: DeepSDF's (bounding-box centre to the origin, farthest vertex at radius
   1/1.03), the same frame the synthetic shapes use.
 
 Anything that makes a mesh unusable raises `MeshProcessingError`, which dataset builders
 catch, log and skip, so one bad model never stops a whole preprocessing run. A mesh whose
-inside cannot be told (much of its surface missing) is one of them; every accepted mesh comes
-with a `SignReport` saying how often the winding number needed the rays' help and how sure the
-result is, which the builders write into the shape's record.
+encloses no volume is one of them; every accepted mesh comes with a `SignReport` saying how
+much of its sign depends on the method or the resolution, which the builders write into the
+shape's record.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from ushape.data.sampling import sample_points, split_by_sign
 from ushape.data.shading import DEFAULT_ALBEDO
 
 UNIT_SPHERE_BUFFER = 1.03  # DeepSDF: farthest vertex at 1/1.03 leaves room for the decoder's band
-SIGN_METHOD = "winding number of outward-oriented patches; ray escape where 1/4 < |w| < 3/4"
+SIGN_METHOD = "unreachable from outside: surface voxels at 256^3, exterior flood fill, rays near the surface"
 
 
 class MeshProcessingError(ValueError):
@@ -123,27 +123,31 @@ def normalise_mesh(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, np.ndarray, 
 
 
 class MeshSdf:
-    """Signed distance [N] of points [N,3] to a real mesh: exact magnitude, winding-number sign (< 0 inside)."""
+    """Signed distance [N] of points [N,3] to a real mesh: exact magnitude, reachability sign (< 0 inside)."""
 
-    def __init__(self, mesh: trimesh.Trimesh, n_rays: int = 32, seed: int = 0) -> None:
+    def __init__(self, mesh: trimesh.Trimesh, seed: int = 0, **sign_options) -> None:
         check_mesh(mesh)
-        self.signs = MeshSigns(mesh, n_rays=n_rays, seed=seed)
+        self.signs = MeshSigns(mesh, seed=seed, **sign_options)
+
+    def distance_and_closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(distance [N] from points [N,3] to the nearest triangle, that triangle's closest point [N,3])."""
+        points = np.ascontiguousarray(points, np.float64)
+        squared, _, closest = igl.point_mesh_squared_distance(points, self.signs.vertices, self.signs.faces)
+        return np.sqrt(squared), closest
 
     def distance(self, points: np.ndarray) -> np.ndarray:
         """Distance [N] from points [N,3] to the nearest triangle."""
-        points = np.ascontiguousarray(points, np.float64)
-        squared, _, _ = igl.point_mesh_squared_distance(points, self.signs.vertices, self.signs.all_faces)
-        return np.sqrt(squared)
+        return self.distance_and_closest(points)[0]
 
     def inside(self, points: np.ndarray) -> np.ndarray:
         """Bool [N]: the point is inside the mesh (see ushape.data.real.mesh_signs)."""
-        return self.signs.inside(points)
+        return self.signs.inside(np.asarray(points, np.float64), *self.distance_and_closest(points))
 
     def sdf(self, points: np.ndarray) -> np.ndarray:
         """Signed distance [N] of points [N,3]; negative inside."""
         points = np.asarray(points, np.float64)
-        distance = self.distance(points)
-        return np.where(self.inside(points), -distance, distance)
+        distance, closest = self.distance_and_closest(points)
+        return np.where(self.signs.inside(points, distance, closest), -distance, distance)
 
 
 @dataclass(frozen=True)
@@ -152,30 +156,29 @@ class SignReport:
 
     method: str
     samples: int
-    confidence: float  # share of samples both tests are clear about (see mesh_signs.SignTally)
+    confidence: float  # share of far samples whose sign depends on neither method nor resolution (lower bound)
+    resolution_agreement: float  # far samples with the same sign on the check grid (mesh_signs.CHECK_RESOLUTION)
+    winding_agreement: float  # far samples with the same sign by the winding number, |w| > 1/2
     inside: float  # share of samples inside
-    undecided: float  # share with 1/4 < |w| < 3/4, which the rays decided
-    leak: float  # mean share of rays escaping from inside samples: 0 when the surface encloses them all
-    patches: int
-    closed_patches: int
-    flipped_patches: int
-    hidden_patches: int  # open patches seen from neither side, left out of the winding number
+    near: float  # share nearer than a voxel diagonal to the mesh, decided by rays
+    enclosed: float  # share of near samples no ray got out from (called inside)
+    resolution: int
+    check_resolution: int
 
     @classmethod
     def of(cls, signs: MeshSigns) -> "SignReport":
         tally: SignTally = signs.tally
-        surface = signs.surface
         return cls(
             method=SIGN_METHOD,
             samples=tally.points,
-            confidence=tally.share(tally.confident),
+            confidence=tally.confidence,
+            resolution_agreement=tally.resolution_agreement,
+            winding_agreement=tally.winding_agreement,
             inside=tally.share(tally.inside),
-            undecided=tally.share(tally.undecided),
-            leak=tally.leak,
-            patches=surface.patches,
-            closed_patches=surface.closed_patches,
-            flipped_patches=surface.flipped_patches,
-            hidden_patches=surface.hidden_patches,
+            near=tally.share(tally.near),
+            enclosed=tally.share(tally.enclosed),
+            resolution=signs.grid.resolution,
+            check_resolution=signs.check_grid.resolution,
         )
 
     def as_dict(self) -> dict:
@@ -196,27 +199,30 @@ def sample_mesh_sdf(
     n_points: int,
     rng: np.random.Generator,
     min_inside_fraction: float = 0.002,
-    min_confidence: float = 0.5,
-    n_rays: int = 32,
+    min_confidence: float = 0.0,
+    **sign_options,
 ) -> tuple[dict[str, np.ndarray], SignReport]:
     """DeepSDF samples {"pos": [P,4], "neg": [Q,4]} of a normalised real mesh, and how sure their signs are.
 
-    Raises MeshProcessingError when the mesh encloses (almost) no volume or when fewer than
-    min_confidence of the samples have a sign both tests are clear about.
+    Raises MeshProcessingError when the mesh encloses (almost) no volume (nothing is unreachable from
+    outside: sheets, open models) or when the sign confidence is under min_confidence (by default
+    every mesh is kept and its report says how sure its signs are). `sign_options` go to MeshSigns.
     """
-    sdf = MeshSdf(mesh, n_rays=n_rays, seed=int(rng.integers(2**31)))
+    sdf = MeshSdf(mesh, seed=int(rng.integers(2**31)), **sign_options)
     points = sample_points(mesh, n_points, rng)
     samples = split_by_sign(points, sdf.sdf(points))
     report = SignReport.of(sdf.signs)
     if report.confidence < min_confidence:
         raise MeshProcessingError(
-            f"sign inconclusive: both tests are clear about only {report.confidence:.0%} of SDF samples (need "
-            f"{min_confidence:.0%}); {report.undecided:.0%} have a winding number between 1/4 and 3/4 and the inside "
-            f"points see {report.leak:.0%} of the sky on average, i.e. the mesh is too open to tell inside from outside"
+            f"signs depend on the method: only {report.confidence:.0%} of far SDF samples keep their sign at "
+            f"{report.check_resolution}^3 and by the winding number (need {min_confidence:.0%}; resolution agreement "
+            f"{report.resolution_agreement:.1%}, winding agreement {report.winding_agreement:.1%}); the mesh is open "
+            "or sealed only by gaps near the voxel size"
         )
     if report.inside < min_inside_fraction:
         raise MeshProcessingError(
             f"only {report.inside:.2%} of SDF samples are inside (need {min_inside_fraction:.2%}): the mesh "
-            "encloses no volume (single-sided sheets or open surfaces), so the decoder would learn no surface"
+            "encloses no volume sealed from outside (single-sided sheets or an open model), so the decoder would learn "
+            "no surface"
         )
     return samples, report

@@ -1,11 +1,13 @@
 """Measure the real-mesh SDF signs: known-answer meshes, agreement with official voxels, time per mesh.
 
     ushape sign-bench --real-root ../shared/data/real_sample \
-        [--baseline old_mesh_sdf.py] [--samples 30000] [--timing-samples 250000] [--json out.json]
+        [--baseline old_mesh_sdf.py [--baseline-signs old_mesh_signs.py]] [--samples 30000] \
+        [--timing-samples 250000] [--json out.json]
 
 `--baseline` names another version of ushape/data/real/mesh_sdf.py (e.g. `git show <commit>:ushape/data/real/mesh_sdf.py
-> old.py`), measured on the same samples beside the current one. Prints markdown tables; the
-numbers measured for issue #18 are in docs/mesh_sdf_signs.md.
+> old.py`), measured on the same samples beside the current one; `--baseline-signs` the
+mesh_signs.py it imports, when that differs from the current one. Prints markdown tables; the
+measured numbers are in docs/mesh_sdf_signs.md.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import argparse
 import importlib.util
 import json
 import os
+import sys
 import time
 from pathlib import Path
 from types import ModuleType
@@ -22,7 +25,7 @@ from typing import Any, Optional
 import igl
 import numpy as np
 
-from ushape.data.real import mesh_sdf, sign_cases
+from ushape.data.real import mesh_sdf, mesh_signs, sign_cases
 from ushape.data.real.pix3d import load_voxels, voxel_to_model
 from ushape.data.real.voxel_check import has_interior, read_solid_binvox, tolerant_truth
 from ushape.data.sampling import sample_points
@@ -32,34 +35,54 @@ TIMING_CHAIR = "ShapeNetCore.v2/03001627/1a6f615e8b1b5ae4dbbc9440457e303e/models
 TIMING_LARGE = "pix3d/model/chair/IKEA_IVAR/model.obj"
 
 
-def load_module(path: str | Path) -> ModuleType:
+def load_module(path: str | Path, signs: Optional[Path] = None) -> ModuleType:
+    """Another mesh_sdf.py as a module; with `signs`, its `ushape.data.real.mesh_signs` import gets that file."""
     spec = importlib.util.spec_from_file_location("baseline_mesh_sdf", path)
     module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    sys.modules[spec.name] = module  # dataclasses look their module up by name
+    name = "ushape.data.real.mesh_signs"
+    current = sys.modules.get(name)
+    try:
+        if signs is not None:
+            signs_spec = importlib.util.spec_from_file_location("baseline_mesh_signs", signs)
+            sys.modules[name] = sys.modules[signs_spec.name] = importlib.util.module_from_spec(signs_spec)
+            signs_spec.loader.exec_module(sys.modules[name])
+        spec.loader.exec_module(module)
+    finally:
+        if current is not None:
+            sys.modules[name] = current
     return module
 
 
-def inside_of(module: ModuleType, mesh, points: np.ndarray) -> np.ndarray:
-    """Bool [N] inside test of a mesh_sdf version, never rejecting (so every case gets a number)."""
-    if hasattr(module, "SignReport"):
-        return module.MeshSdf(mesh).inside(points)
-    return module.MeshSdf(mesh, max_ambiguous_fraction=1.0).inside(points)
+def inside_of(module: ModuleType, mesh, points: np.ndarray, options: dict) -> tuple[np.ndarray, Any]:
+    """(bool [N] inside test of a mesh_sdf version, never rejecting (so every case gets a number), its MeshSdf).
+
+    `options` (MeshSigns settings such as the resolution) go to the current version only."""
+    if module is mesh_sdf:
+        sdf = module.MeshSdf(mesh, **options)
+    elif hasattr(module, "SignReport"):
+        sdf = module.MeshSdf(mesh)
+    else:
+        sdf = module.MeshSdf(mesh, max_ambiguous_fraction=1.0)
+    return sdf.inside(points), sdf
 
 
-def known_answer_rows(methods: dict[str, ModuleType], n: int) -> list[dict[str, Any]]:
+def known_answer_rows(methods: dict[str, ModuleType], n: int, options: dict) -> list[dict[str, Any]]:
+    """Per known-answer mesh: share of right signs away from the surface, and near it (1e-4 to AWAY)."""
     rows = []
     for make in sign_cases.KNOWN_ANSWER_CASES + (sign_cases.open_box,):
         case = make()
         points = sample_points(case.mesh, n, np.random.default_rng(0))
         vertices, faces = np.asarray(case.mesh.vertices, np.float64), np.asarray(case.mesh.faces, np.int64)
-        away = np.sqrt(igl.point_mesh_squared_distance(points, vertices, faces)[0]) >= AWAY
+        distance = np.sqrt(igl.point_mesh_squared_distance(points, vertices, faces)[0])
+        away, near = distance >= AWAY, (distance > 1e-4) & (distance < AWAY)
         row: dict[str, Any] = {"case": case.name, "faces": len(faces), "samples away": int(away.sum())}
         for name, module in methods.items():
-            inside = inside_of(module, case.mesh, points)
+            inside, sdf = inside_of(module, case.mesh, points, options)
             row[name] = float(np.mean(inside[away] == case.solid(points[away]))) if case.solid else None
-        report = mesh_sdf.MeshSdf(case.mesh)
-        report.inside(points)
-        row.update(_report_columns(mesh_sdf.SignReport.of(report.signs)))
+            row[f"{name} near"] = float(np.mean(inside[near] == case.solid(points[near]))) if case.solid else None
+            if module is mesh_sdf:
+                row.update(_report_columns(mesh_sdf.SignReport.of(sdf.signs)))
         rows.append(row)
     return rows
 
@@ -77,7 +100,7 @@ def real_models(root: Path) -> list[tuple[str, Path, Path]]:
     return [f for f in found if f[2].is_file()]
 
 
-def real_rows(methods: dict[str, ModuleType], root: Path, n: int) -> list[dict[str, Any]]:
+def real_rows(methods: dict[str, ModuleType], root: Path, n: int, options: dict) -> list[dict[str, Any]]:
     rows = []
     for name, model, voxels in real_models(root):
         raw = mesh_sdf.load_mesh(model)
@@ -92,7 +115,8 @@ def real_rows(methods: dict[str, ModuleType], root: Path, n: int) -> list[dict[s
             rng = np.random.default_rng(0)
             start = time.perf_counter()
             try:
-                result = module.sample_mesh_sdf(mesh, n, rng)
+                extra = options if module is mesh_sdf else {}
+                result = module.sample_mesh_sdf(mesh, n, rng, min_inside_fraction=0.0, min_confidence=0.0, **extra)
             except module.MeshProcessingError as err:
                 row[method] = None
                 row[f"{method} rejected"] = str(err)
@@ -103,7 +127,7 @@ def real_rows(methods: dict[str, ModuleType], root: Path, n: int) -> list[dict[s
             checked, truth = tolerant_truth(occupancy, index_to_model, rows_xyz[:, :3] / scale + centre)
             row["checked"] = int(checked.sum())
             row[method] = float(np.mean((rows_xyz[checked, 3] < 0) == truth[checked]))
-            if report is not None:
+            if module is mesh_sdf:
                 row.update(_report_columns(report))
         rows.append(row)
     return rows
@@ -112,10 +136,10 @@ def real_rows(methods: dict[str, ModuleType], root: Path, n: int) -> list[dict[s
 def _report_columns(report) -> dict[str, Any]:
     return {
         "confidence": report.confidence,
-        "leak": report.leak,
-        "undecided": report.undecided,
-        "patches (closed/flipped/hidden)": f"{report.patches} ({report.closed_patches}/"
-        f"{report.flipped_patches}/{report.hidden_patches})",
+        "resolution agreement": report.resolution_agreement,
+        "winding agreement": report.winding_agreement,
+        "near": report.near,
+        "enclosed": report.enclosed,
     }
 
 
@@ -152,7 +176,10 @@ def main(argv: Optional[list[str]] = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--real-root", type=Path, help="folder holding ShapeNetCore.v2/ and pix3d/model/")
     parser.add_argument("--baseline", type=Path, help="another mesh_sdf.py to measure beside the current one")
+    parser.add_argument("--baseline-signs", type=Path, help="the mesh_signs.py the baseline imports")
     parser.add_argument("--samples", type=int, default=30_000)
+    parser.add_argument("--resolution", type=int, default=mesh_signs.RESOLUTION, help="the current method's grid")
+    parser.add_argument("--check-resolution", type=int, default=mesh_signs.CHECK_RESOLUTION)
     parser.add_argument("--timing-samples", type=int, default=250_000)
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--no-timing", action="store_true")
@@ -160,12 +187,13 @@ def main(argv: Optional[list[str]] = None) -> int:
     args = parser.parse_args(argv)
     methods = {"current": mesh_sdf}
     if args.baseline:
-        methods["baseline"] = load_module(args.baseline)
-    results: dict[str, Any] = {"known answers": known_answer_rows(methods, args.samples)}
-    print(f"## Known-answer meshes (share of right signs, samples >= {AWAY} from the surface)\n")
+        methods["baseline"] = load_module(args.baseline, args.baseline_signs)
+    options = {"resolution": args.resolution, "check_resolution": args.check_resolution}
+    results: dict[str, Any] = {"known answers": known_answer_rows(methods, args.samples, options)}
+    print(f"## Known-answer meshes (share of right signs, samples >= {AWAY} from the surface; near: 1e-4 to {AWAY})\n")
     print(markdown(results["known answers"]), flush=True)
     if args.real_root:
-        results["real models"] = real_rows(methods, args.real_root, args.samples)
+        results["real models"] = real_rows(methods, args.real_root, args.samples, options)
         print("\n## Real models against official voxels (tolerant check)\n")
         print(markdown(results["real models"]), flush=True)
         if not args.no_timing:

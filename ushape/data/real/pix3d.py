@@ -56,8 +56,9 @@ ANNOTATIONS_FILE = "pix3d.json"
 CATEGORY_NAMES = {"chairs": "chair", "tables": "table"}
 VOXEL_AXES = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # rows: model axis of voxel i, j, k
 # 2: renders/ holds the filtered photos' crops (one view per photo)
-# 3: SDF signs by winding number (issue #18); shapes/<id>.json records how sure they are (sdf_signs)
-PREPROCESS_VERSION = 3
+# 3: SDF signs by winding number; shapes/<id>.json records how sure they are (sdf_signs)
+# 4: SDF signs by reachability from outside (the official voxels' convention); sdf_signs reports method dependence
+PREPROCESS_VERSION = 4
 MASK_INPUTS = ("gt_mask", "none")  # how evaluation may read the views: with the GT mask, or the photo as is
 SKIPPED_FILE = "skipped.json"
 EXPECTED_LAYOUT = __doc__.split("\n\n")[1]

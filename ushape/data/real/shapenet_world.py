@@ -41,8 +41,9 @@ from ushape.data.shape_artifacts import artifact_problems, r2n2_frame
 log = logging.getLogger(__name__)
 
 # 2: R2N2 cameras in the layout's axes (v1 or v2), azimuth as R2N2's; alpha >= 128 masks
-# 3: SDF signs by winding number (issue #18); shapes/<id>.json records how sure they are (sdf_signs)
-PREPROCESS_VERSION = 3
+# 3: SDF signs by winding number; shapes/<id>.json records how sure they are (sdf_signs)
+# 4: SDF signs by reachability from outside (the official voxels' convention); sdf_signs reports method dependence
+PREPROCESS_VERSION = 4
 SKIPPED_FILE = "skipped.json"
 SDF_STREAM, VIEWS_STREAM = 1, 2
 

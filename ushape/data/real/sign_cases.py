@@ -1,9 +1,10 @@
 """Meshes whose inside is known by construction, modelled the ways real CAD meshes go wrong.
 
 Each case is a triangle mesh as a modeller might have saved it and the solid it stands for,
-as a union of axis-aligned boxes or a ball, so every point's right sign is computable exactly.
-The tests check `ushape.data.real.mesh_signs` on them and the sign benchmark measures old and new
-methods on the same meshes.
+as a union of axis-aligned boxes, so every point's right sign is computable exactly. The right
+sign is the official voxels' convention: inside when no path from outside reaches the point
+without crossing a face. The tests check `ushape.data.real.mesh_signs` on them and the sign
+benchmark measures old and new methods on the same meshes.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ def box_mesh(box: Box) -> trimesh.Trimesh:
 
 def in_boxes(boxes: list[Box]) -> Callable[[np.ndarray], np.ndarray]:
     """Bool [N] function: the point lies in at least one box."""
-    lows, highs = np.array([b[0] for b in boxes]), np.array([b[1] for b in boxes])
+    lows, highs = np.array([b[0] for b in boxes]).reshape(-1, 3), np.array([b[1] for b in boxes]).reshape(-1, 3)
 
     def solid(points: np.ndarray) -> np.ndarray:
         p = points[:, None, :]
@@ -46,7 +47,7 @@ def union_of_closed_boxes(boxes: list[Box]) -> trimesh.Trimesh:
 
 
 def cabinet() -> SignCase:
-    """Four deep cubbies open at the front, every panel a closed box (as the issue's 22-part shelf unit)."""
+    """Four deep cubbies open at the front, every panel a closed box (like a real 22-part shelf unit)."""
     t = 0.05
     boxes = [
         ((-0.6, -0.7, -0.5), (-0.6 + t, 0.7, 0.5)),
@@ -106,9 +107,9 @@ def open_shell_chair() -> SignCase:
     return SignCase(
         "open double-walled shell",
         mesh,
-        in_boxes([seat, back]),
-        "the space between the walls is inside: a solid seat and back whose rims were left open "
-        "(a flood-filled voxelisation leaves them hollow; no test of the mesh can know which was meant)",
+        in_boxes([]),
+        "nothing is inside: the space between the walls is reached through the rim holes, so it is "
+        "outside, as a flood-filled voxelisation leaves it (hollow)",
     )
 
 
@@ -165,8 +166,8 @@ def sieve_sphere(seed: int = 0) -> SignCase:
     return SignCase(
         "sphere with 6% of faces missing",
         trimesh.Trimesh(sphere.vertices, sphere.faces[kept], process=False),
-        lambda p: np.linalg.norm(p, axis=1) < 0.8,
-        "the ball is inside",
+        in_boxes([]),
+        "nothing is inside: the ball is reached through the missing faces (hollow voxels)",
     )
 
 
@@ -192,4 +193,86 @@ def sheet() -> SignCase:
     )
 
 
-KNOWN_ANSWER_CASES = (cabinet, drawer_table, open_shell_chair, sheet_chair, broken_soup, sieve_sphere)
+def _legs(top: float, half_x: float, half_z: float, width: float = 0.06) -> list[Box]:
+    w = width / 2
+    return [((x - w, -0.8, z - w), (x + w, top, z + w)) for x in (-half_x, half_x) for z in (-half_z, half_z)]
+
+
+def sealed_box_table() -> SignCase:
+    """A tabletop built as a box of six closed thin plates touching at the edges, on four closed legs.
+
+    The hollow inside the box has winding number 0 and no straight ray leaves it, yet nothing from
+    outside reaches it: the official voxels fill it.
+    """
+    x0, x1, y0, y1, z0, z1, t = -0.6, 0.6, 0.3, 0.5, -0.4, 0.4, 0.02
+    plates = [
+        ((x0, y1 - t, z0), (x1, y1, z1)),  # top
+        ((x0, y0, z0), (x1, y0 + t, z1)),  # bottom
+        ((x0, y0 + t, z0), (x0 + t, y1 - t, z1)),
+        ((x1 - t, y0 + t, z0), (x1, y1 - t, z1)),  # left, right
+        ((x0 + t, y0 + t, z0), (x1 - t, y1 - t, z0 + t)),
+        ((x0 + t, y0 + t, z1 - t), (x1 - t, y1 - t, z1)),  # back, front
+    ]
+    legs = _legs(y0, 0.55, 0.35)
+    return SignCase(
+        "tabletop box of six closed plates (sealed hollow)",
+        union_of_closed_boxes(plates + legs),
+        in_boxes([((x0, y0, z0), (x1, y1, z1))] + legs),
+        "the plates, legs and the sealed hollow between the plates are inside",
+    )
+
+
+def doubled_soup_chair(seed: int = 0) -> SignCase:
+    """A chair of closed boxes stored as a triangle soup: every face twice, 1e-4 apart, each its own component."""
+    rng = np.random.default_rng(seed)
+    boxes = [((-0.4, -0.05, -0.4), (0.4, 0.05, 0.4)), ((-0.4, 0.05, -0.4), (0.4, 0.85, -0.32))] + _legs(
+        -0.05, 0.34, 0.34
+    )
+    parts = []
+    for box in boxes:
+        mesh = box_mesh(box).subdivide().subdivide().subdivide()
+        triangles = mesh.triangles
+        copies = [triangles, triangles[:, ::-1] - 1e-4 * mesh.face_normals[:, None, :]]  # the twin faces inward
+        for copy in copies:
+            flip = rng.random(len(copy)) < 0.5
+            copy = np.where(flip[:, None, None], copy[:, ::-1], copy)
+            parts.append(copy)
+    triangles = np.concatenate(parts)
+    mesh = trimesh.Trimesh(triangles.reshape(-1, 3), np.arange(3 * len(triangles)).reshape(-1, 3), process=False)
+    return SignCase(
+        "chair with every face stored twice (triangle soup)",
+        mesh,
+        in_boxes(boxes),
+        "the boxes are inside; the space between them is outside",
+    )
+
+
+def open_seat_chair() -> SignCase:
+    """A chair whose seat and back are one single-sided surface left open at the back, on closed legs.
+
+    Like a model whose back was never modelled: a flood-filled voxelisation enters through the
+    opening and leaves the seat a hollow shell.
+    """
+    seat = ((-0.4, -0.05, -0.4), (0.4, 0.05, 0.4))
+    opening = [((-0.5, -0.1, -0.5), (0.5, 0.1, -0.399))]
+    legs = _legs(-0.05, 0.34, 0.34)
+    mesh = trimesh.util.concatenate([_box_surface_with_holes(seat, opening), union_of_closed_boxes(legs)])
+    return SignCase(
+        "seat surface open at the back (hollow voxels)",
+        mesh,
+        in_boxes(legs),
+        "only the legs are inside; the seat's inside is reached through the open back",
+    )
+
+
+KNOWN_ANSWER_CASES = (
+    cabinet,
+    drawer_table,
+    open_shell_chair,
+    sheet_chair,
+    broken_soup,
+    sieve_sphere,
+    sealed_box_table,
+    doubled_soup_chair,
+    open_seat_chair,
+)
