@@ -15,8 +15,9 @@ PACKAGE = ROOT / "ushape"
 
 # Building blocks (the bad-input error type, file I/O, run-folder names, checkpoints, building configured
 # objects), then the data's way: procedural shapes, datasets and rendering, grids and marching cubes, the
-# scoring maths, stage 1, stage 2, fusion, propagation, recalibration, reconstruction, next-best-view
-# planning, and the commands built on all of them, with the `ushape` command that runs each of them last.
+# scoring maths, stage 1, stage 2, fusion, propagation, recalibration, refinement on the views,
+# reconstruction, next-best-view planning, and the commands built on all of them, with the `ushape`
+# command that runs each of them last.
 FLOW = (
     "torchvision_cpu",
     "errors",
@@ -33,6 +34,7 @@ FLOW = (
     "fusion",
     "propagation",
     "recalibration",
+    "refinement",
     "reconstruction",
     "planning",
     "training",

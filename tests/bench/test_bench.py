@@ -54,8 +54,9 @@ def test_quick_bench_writes_the_whole_table(tmp_path, capsys):
     assert _seconds(rows["fusion bayesian"][0]) > 0 and rows["fusion bayesian"][1] == "0.1 ms"
     assert re.search(r"< 0\.1 ms (pass|miss)", rows["fusion bayesian"][2])
     ratios = [line for line in text.splitlines() if line.startswith("| ") and "x |" in line]
-    assert len(ratios) == 20  # 10 ratios x 2 decoders
-    assert sum(("pass" in r) or ("miss" in r) for r in ratios) == 10  # 5 with a target x 2 decoders
+    assert len(ratios) == 22  # 11 ratios x 2 decoders
+    assert sum(("pass" in r) or ("miss" in r) for r in ratios) == 12  # 6 with a target x 2 decoders
+    assert "fallback: None" in rows["refine masks (2 views, 16 px)"][3]
     assert "variance at" in rows["field uncertainty linearised narrow band"][3]
     assert "faster than MC M=10" in rows["depth uncertainty implicit (2 views)"][3]
 

@@ -7,10 +7,10 @@ import torch
 from ushape.bench.computation import Measurement
 from ushape.bench.depth import depth_rows, orbit_cameras, pooled_stats
 from ushape.data.cameras import camera_centre
+from ushape.propagation.depth_implicit import depth_uncertainty_implicit, std_agreement
 from ushape.propagation.monte_carlo import sample_codes
-from ushape.reconstruction.depth_implicit import depth_uncertainty_implicit, std_agreement
+from ushape.propagation.sphere_tracing import depth_uncertainty
 from ushape.reconstruction.pipeline import CANONICAL_CAMERA
-from ushape.reconstruction.sphere_tracing import depth_uncertainty
 
 
 class RadiusDecoder(torch.nn.Module):

@@ -1,5 +1,6 @@
 """The reconstruct command end to end on a tiny run with an analytic sphere decoder swapped in."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -208,3 +209,35 @@ def test_reconstruct_takes_a_full_covariance(tiny_run, sphere_predictor, tmp_pat
         with np.load(view["depth"]["npz"]) as depth:
             hit = depth["hit_rate"] > 0
             assert hit.any() and np.isfinite(depth["std"][hit]).all() and (depth["std"][hit] > 0).all()
+
+
+def test_refine_masks_on_renders_records_the_refinement_and_meshes_the_posterior(tiny_run, sphere_predictor, tmp_path):
+    views = sorted((tiny_run["world"] / "renders" / "test_0").glob("*.png"))[:2]
+    settings = dataclasses.replace(SMALL, refine="masks", refine_size=12)
+    summary = reconstruct(sphere_predictor, views, BayesianKFusion(k=2), tmp_path / "out", settings)
+    record = summary["refinement"]
+    assert record["mode"] == "masks" and record["views_with_camera"] == 2 and record["fallback"] is None
+    assert record["iterations"] >= 1 and record["rows"]["masks"] == 2 * 12 * 12
+    assert record["energy_end"] <= record["energy_start"]
+    assert np.isfinite(np.asarray(summary["mesh"]["std_mean"]))
+
+
+def test_refine_without_cameras_says_so_and_keeps_the_fused_code(tiny_run, sphere_predictor, tmp_path, caplog):
+    photo = tmp_path / "photo.png"
+    photo.write_bytes(sorted((tiny_run["world"] / "renders" / "test_0").glob("*.png"))[0].read_bytes())
+    settings = dataclasses.replace(SMALL, refine="depth")
+    summary = reconstruct(sphere_predictor, [photo], BayesianKFusion(k=2), tmp_path / "out", settings)
+    assert summary["refinement"]["fallback"] == "no view has a camera"
+    assert summary["refinement"]["mu"] == summary["fused"]["mu"]
+    assert "no camera" in caplog.text
+    with pytest.raises(ValueError, match="refine must be one of"):
+        reconstruct(
+            sphere_predictor, [photo], BayesianKFusion(k=2), tmp_path / "o2", dataclasses.replace(SMALL, refine="x")
+        )
+
+
+def test_cli_camera_file_and_masks_need_refine(tiny_run, tmp_path, capsys):
+    views = sorted((tiny_run["world"] / "renders" / "test_0").glob("*.png"))[:1]
+    args = [*map(str, views), "--run", str(tiny_run["run"]), "--out", str(tmp_path / "o"), "--masks", str(views[0])]
+    assert main(args) == 2
+    assert "add --refine" in capsys.readouterr().err

@@ -65,6 +65,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         fusion_repeats=200 if args.quick else 2000,
         depth_views=args.depth_views,
         depth_size=16 if args.quick else 48,
+        refine_views=2 if args.quick else 12,
+        refine_size=16 if args.quick else 64,
     )
     fit_steps = args.fit_steps if args.fit_steps is not None else (0 if args.quick else 300)
     decoders = {name: (args.decoder_dir if name == "small" else None) for name in args.decoders}

@@ -24,6 +24,7 @@ from torch import nn
 
 from ushape.bench.depth import depth_rows
 from ushape.bench.fitted import fitted_decoder
+from ushape.bench.refine import refine_rows
 from ushape.bench.timing import Measurement, timed
 from ushape.decoder.artifacts import codes_file, load_codes, load_decoder
 from ushape.decoder.folded import fold_code
@@ -48,6 +49,8 @@ class BenchSettings:
     depth_views: int = 12  # views of the depth-uncertainty rows (0: skip them)
     depth_size: int = 48  # their pixels per side
     depth_var: float = 0.001  # per-dimension latent variance of their Gaussian
+    refine_views: int = 12  # views of the refinement rows (0: skip them)
+    refine_size: int = 64  # their pixels per side
 
 
 def bench_decoder(
@@ -197,6 +200,8 @@ def decoder_rows(decoder: nn.Module, code: torch.Tensor, settings: BenchSettings
             seed=settings.seed,
             repeats=reps,
         )
+    if settings.refine_views > 0:
+        rows += refine_rows(decoder, code, settings.refine_views, settings.refine_size, seed=settings.seed)
     return rows
 
 

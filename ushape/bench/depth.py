@@ -17,14 +17,14 @@ from torch import Tensor, nn
 
 from ushape.bench.timing import Measurement, timed
 from ushape.data.cameras import look_at
-from ushape.propagation.monte_carlo import sample_codes
-from ushape.reconstruction.depth_implicit import (
+from ushape.propagation.depth_implicit import (
     depth_uncertainty_implicit,
     depth_uncertainty_implicit_views,
     std_agreement,
 )
+from ushape.propagation.monte_carlo import sample_codes
+from ushape.propagation.sphere_tracing import DepthStats, depth_uncertainty
 from ushape.reconstruction.pipeline import CANONICAL_CAMERA
-from ushape.reconstruction.sphere_tracing import DepthStats, depth_uncertainty
 
 
 def orbit_cameras(views: int, size: int) -> list[tuple]:

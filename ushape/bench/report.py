@@ -24,7 +24,7 @@ PAPER_A100_S = {
 # the full-grid linearised field within 2.2x the plain field (one backward costs about one forward, so 2x
 # is the floor), the narrow band within 0.2x of it, depth uncertainty by
 # implicit differentiation 10x faster than sphere tracing M = 10 codes.
-FIELD_TARGET, BAND_TARGET, DEPTH_SPEEDUP_TARGET = 2.2, 0.2, 10.0
+FIELD_TARGET, BAND_TARGET, DEPTH_SPEEDUP_TARGET, REFINE_TARGET = 2.2, 0.2, 10.0, 5.0
 MESH_TARGET, FUSION_TARGET_S = 1.10, 0.1e-3
 
 
@@ -101,6 +101,8 @@ def ratio_rows(bench: DecoderBench) -> list[tuple[str, float | None, str, bool |
     mesh_lin = _ratio(_total(bench, "mesh coarse-to-fine", "vertex uncertainty linearised"), mesh)
     mesh_mc = _ratio(_total(bench, "mesh coarse-to-fine", "vertex uncertainty mc"), mesh)
     bf16 = next((r.seconds for r in bench.rows if r.name.startswith("decoder field") and "bf16" in r.name), None)
+    refine_masks = next((r.seconds for r in bench.rows if r.name.startswith("refine masks")), None)
+    refine_ratio = _ratio(refine_masks, _total(bench, "mesh coarse-to-fine", "vertex uncertainty linearised"))
 
     def check(value: float | None, target: float) -> bool | None:
         return None if value is None else value <= target
@@ -135,6 +137,12 @@ def ratio_rows(bench: DecoderBench) -> list[tuple[str, float | None, str, bool |
             depth_speedup,
             f">= {DEPTH_SPEEDUP_TARGET:g}x",
             None if depth_speedup is None else depth_speedup >= DEPTH_SPEEDUP_TARGET,
+        ),
+        (
+            "refine masks (12 views) / mesh w/ unc (linearised)",
+            refine_ratio,
+            f"<= {REFINE_TARGET:g}x",
+            check(refine_ratio, REFINE_TARGET),
         ),
     ]
 

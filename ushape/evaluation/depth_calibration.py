@@ -31,8 +31,8 @@ from ushape.evaluation.locality import render_cameras
 from ushape.evaluation.protocols import EncoderSpec
 from ushape.evaluation.views import Encodings
 from ushape.metrics.calibration import calibration_curve, calibration_error, two_sided_quantile
+from ushape.propagation.depth_implicit import depth_stats
 from ushape.propagation.monte_carlo import sample_codes
-from ushape.reconstruction.depth_implicit import depth_stats
 
 COVERAGE_LEVELS = {"coverage_68": 0.68, "coverage_95": 0.95}
 log = logging.getLogger(__name__)

@@ -13,7 +13,7 @@ from typing import Sequence
 from ushape.evaluation.active import check_active_settings
 from ushape.evaluation.protocols import GROUP_SIZE
 from ushape.propagation import SDF_CLAMP
-from ushape.reconstruction.depth_implicit import DEPTH_METHODS
+from ushape.propagation.depth_implicit import DEPTH_METHODS
 
 # What `protocols=auto` runs (the active protocol is asked for by name: protocols=[active]).
 PAPER_PROTOCOLS = ("single_view", "multi_view", "corrupted", "uncertainty", "locality", "depth")

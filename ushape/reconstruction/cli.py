@@ -2,7 +2,8 @@
 
     python reconstruct.py IMAGE [IMAGE ... | FOLDER] [--run RUN | --checkpoint CKPT] [--out DIR]
         [--fusion average|bayesian|bayesian_k] [--k 4] [--uncertainty mc|linearised]
-        [--resolution 128] [--depth-method implicit|mc] [--temperature] [--std-max S] ...
+        [--resolution 128] [--depth-method implicit|mc] [--temperature] [--std-max S]
+        [--refine masks|depth [--cameras CAMERAS.npz] [--masks MASK ...]] ...
     python reconstruct.py --fit-temperature [--run RUN | --checkpoint CKPT]
 
 Without --run/--checkpoint the newest encoder run under ./outputs/runs is used. The fusion rule is
@@ -25,11 +26,13 @@ from omegaconf import OmegaConf
 
 from ushape.fusion.rules import check_k
 from ushape.mesh.extraction import EmptySurfaceError
+from ushape.propagation.depth_implicit import DEPTH_METHODS
 from ushape.propagation.mesh import METHODS
-from ushape.reconstruction.depth_implicit import DEPTH_METHODS
 from ushape.reconstruction.pipeline import ReconstructionSettings, reconstruct
 from ushape.reconstruction.predictor import collect_inputs, load_predictor
 from ushape.reconstruction.temperature_store import fit_and_store_temperature
+from ushape.refinement import MODES as REFINE_MODES
+from ushape.refinement.inputs import input_views
 from ushape.workspace import CONFIG_DIR
 
 FUSION_CONFIGS = CONFIG_DIR / "fusion"
@@ -86,6 +89,20 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="top of the colour scale (default: the 99th percentile of the mesh's stds)",
     )
+    parser.add_argument(
+        "--refine",
+        default=None,
+        choices=REFINE_MODES,
+        help="refine the fused code on what the views show (masks, or masks + depth); needs their cameras",
+    )
+    parser.add_argument(
+        "--cameras",
+        default=None,
+        help="npz with K [V,3,3], world_to_cam [V,4,4] (optional masks, depth) per input image, in order "
+        "(default: a render's own views.npz)",
+    )
+    parser.add_argument("--masks", nargs="+", default=None, help="one mask image per input (default: alpha)")
+    parser.add_argument("--refine-size", type=int, default=32, help="rays per image side the refinement compares")
     parser.add_argument("--cmap", default="inferno", help="matplotlib colormap for the std colours")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default=None, help=f"output folder (default {DEFAULT_OUT}/<time>)")
@@ -115,9 +132,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             std_max=args.std_max,
             cmap=args.cmap,
             seed=args.seed,
+            refine=args.refine,
+            refine_size=args.refine_size,
         )
+        if (args.cameras or args.masks) and not args.refine:
+            raise ValueError("--cameras and --masks are read by the refinement: add --refine masks|depth")
+        given = args.cameras or args.masks
+        observations = input_views(files, args.cameras, args.masks) if args.refine and given else None
         out = Path(args.out) if args.out else DEFAULT_OUT / time.strftime("%Y-%m-%d_%H-%M-%S")
-        summary = reconstruct(predictor, files, fusion, out, settings)
+        summary = reconstruct(predictor, files, fusion, out, settings, observations)
     except EmptySurfaceError as err:
         print(
             f"error: the fused code's SDF has no surface in [-1, 1]^3 ({err}); try other views or --fusion",
@@ -132,6 +155,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{len(summary['views'])} view(s), fused {kept} with {summary['fusion']}; "
         f"mesh {summary['mesh']['vertices']} vertices -> {out}"
     )
+    if summary["refinement"] is not None:
+        record = summary["refinement"]
+        outcome = f"fell back to the fused code: {record['fallback']}" if record["fallback"] else "refined"
+        print(f"  refinement ({record['mode']}, {record['iterations']} iterations): {outcome}")
     for name, path in summary["files"].items():
         print(f"  {name}: {path}")
     return 0

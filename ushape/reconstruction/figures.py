@@ -16,7 +16,7 @@ from torch import Tensor  # noqa: E402
 from ushape import atomic  # noqa: E402
 from ushape.data.cameras import R2N2_FOV_DEG, look_at  # noqa: E402
 from ushape.data.rendering import RayCaster, render_mesh  # noqa: E402
-from ushape.reconstruction.sphere_tracing import DepthStats  # noqa: E402
+from ushape.propagation.sphere_tracing import DepthStats  # noqa: E402
 
 # The mesh is shown from around the object at the R2N2 elevation, far enough for the unit sphere.
 VIEW_AZIMUTHS = (30.0, 120.0, 210.0, 300.0)

@@ -31,15 +31,18 @@ from ushape.decoder.latent_gaussian import is_full_covariance, latent_trace
 from ushape.decoder.query import code_sdf_fn, frozen
 from ushape.fusion.rules import FusedCode
 from ushape.mesh.extraction import extract_mesh
+from ushape.propagation.depth_implicit import DEPTH_METHODS, depth_stats
 from ushape.propagation.mesh import METHODS, vertex_uncertainty
 from ushape.propagation.monte_carlo import sample_codes
+from ushape.propagation.sphere_tracing import DepthStats
 from ushape.recalibration import apply_temperature
-from ushape.reconstruction.depth_implicit import DEPTH_METHODS, depth_stats
 from ushape.reconstruction.export import DEFAULT_CMAP, coloured_mesh, write_mesh_files
 from ushape.reconstruction.figures import depth_figure, overview_figure
 from ushape.reconstruction.predictor import Predictor
-from ushape.reconstruction.sphere_tracing import DepthStats
 from ushape.reconstruction.visibility import hidden_over_visible
+from ushape.refinement import MODES as REFINE_MODES
+from ushape.refinement import ObservationSettings, ObservedView, RefineSettings, refine
+from ushape.refinement.inputs import input_views
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +66,8 @@ class ReconstructionSettings:
     std_max: float | None = None
     cmap: str = DEFAULT_CMAP
     seed: int = 0
+    refine: str | None = None  # "masks" | "depth": refine the fused code on the views (ushape.refinement)
+    refine_size: int = 32  # rays per image side the refinement compares
 
 
 def view_camera(path: Path, size: int) -> tuple[np.ndarray, np.ndarray, str]:
@@ -111,8 +116,16 @@ def reconstruct(
     fusion: Fusion,
     out_dir: str | Path,
     settings: ReconstructionSettings = ReconstructionSettings(),
+    observations: Sequence[ObservedView | None] | None = None,
 ) -> dict[str, Any]:
-    """Run the whole reconstruction of one object from its views and write every output; returns the summary."""
+    """Run the whole reconstruction of one object from its views and write every output; returns the summary.
+
+    With settings.refine, the fused code is refined on the views' masks (and depth): `observations`, one
+    per input image (None: no camera), or by default the cameras, masks and depth of renders of the world.
+    The mesh, its std and the depth maps then come from the full-covariance posterior.
+    """
+    if settings.refine is not None and settings.refine not in REFINE_MODES:
+        raise ValueError(f"refine must be one of {REFINE_MODES} or None, got {settings.refine!r}")
     if settings.uncertainty not in METHODS:
         raise ValueError(f"uncertainty must be one of {METHODS}, got {settings.uncertainty!r}")
     if settings.depth_method not in DEPTH_METHODS:
@@ -127,6 +140,10 @@ def reconstruct(
     with timer("fuse"):
         fused = fusion(mu, var)
     decoder = predictor.decoder
+    prior, refinement = fused, None
+    if settings.refine is not None:
+        with timer("refine"):
+            fused, refinement = refined(decoder, fused, inputs, paths, observations, settings)
     with timer("mesh"), frozen(decoder):
         coarse = min(32, settings.resolution)  # extract_mesh's default coarse grid, capped for small meshes
         mesh, stats = extract_mesh(
@@ -161,7 +178,7 @@ def reconstruct(
         paths,
         skipped,
         var,
-        fused,
+        prior,
         mesh,
         std,
         stats,
@@ -170,7 +187,33 @@ def reconstruct(
         depth,
         seen,
         timer.seconds,
+        refinement,
     )
+
+
+def refined(
+    decoder: torch.nn.Module,
+    fused: FusedCode,
+    inputs: Sequence[str | Path],
+    paths: Sequence[Path],  # the inputs that could be read
+    observations: Sequence[ObservedView | None] | None,  # one per input
+    settings: ReconstructionSettings,
+) -> tuple[FusedCode, dict[str, Any]]:
+    """The fused code refined on the views (FusedCode with var the full covariance [D, D]) and its record."""
+    if observations is None:
+        views = input_views(paths)
+    elif len(observations) != len(inputs):
+        raise ValueError(f"{len(observations)} observed views for {len(inputs)} input images: pass one per image")
+    else:
+        by_input = dict(zip((Path(i) for i in inputs), observations))
+        views = [by_input[Path(p)] for p in paths]
+    options = RefineSettings(mode=settings.refine, observation=ObservationSettings(size=settings.refine_size))
+    posterior = refine(decoder, fused.mu, fused.var, views, options)
+    record = {"mode": settings.refine, "views_with_camera": sum(v is not None for v in views), **posterior.record()}
+    record["mu"] = posterior.mu.tolist()
+    if posterior.fallback is not None:  # the prior exactly, in its own (diagonal) form
+        return fused, record
+    return FusedCode(posterior.mu, posterior.cov, fused.kept), record
 
 
 def depth_maps(
@@ -248,8 +291,10 @@ def write_summary(
     depth: list[dict],
     seen: list[dict | None],
     seconds: dict[str, float],
+    refinement: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """summary.json: inputs, per-view uncertainty (trace of var), fusion's kept views, mesh, timings, paths."""
+    """summary.json: inputs, per-view uncertainty (trace of var), fusion's kept views, the refinement's record
+    (None without refinement), mesh, timings, paths."""
     kept = set(fused.kept.tolist())
     summary = {
         "checkpoint": str(predictor.checkpoint),
@@ -284,6 +329,7 @@ def write_summary(
             "decoder_evaluations": stats.evaluations,
             "dense_evaluations": stats.dense_evaluations,
         },
+        "refinement": refinement,
         "files": {**files, "overview": str(overview)},
         "seconds": seconds,
     }

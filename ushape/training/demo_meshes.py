@@ -6,6 +6,8 @@ default), both coloured on the single view's scale so the two can be compared by
 
     <run>/meshes/<shape id>_1view/     mesh.ply, mesh.glb, overview.png, depth_00.png, summary.json
     <run>/meshes/<shape id>_<N>views/
+    <run>/meshes/<shape id>_1view_refined_<mode>/, ..._<N>views_refined_<mode>/   the same views, the fused
+                                       code refined on their masks (refine "masks") or masks + depth ("depth")
     <run>/meshes/scores.json           each mesh's IoU / Chamfer against the ground truth, and those of
                                        the shape's own stage-1 code (what this decoder can do at best)
 
@@ -53,6 +55,7 @@ def write_demo_meshes(
     split: str = "val",
     fusion: FusionRule | None = None,
     codes: CodeTable | None = None,
+    refine: str | None = None,
 ) -> Path | None:
     """Reconstruct `shapes` held-out shapes from 1 and from all views into out_dir; None if shapes = 0.
 
@@ -67,17 +70,21 @@ def write_demo_meshes(
     for shape_id in ids:
         views = view_files(world.root, shape_id)
         settings = ReconstructionSettings(resolution=resolution, depth_size=48)
-        for inputs in (views[:1], views):
+        modes = (None,) if refine is None else (None, refine)
+        for inputs, mode in [(inputs, mode) for inputs in (views[:1], views) for mode in modes]:
             folder = out_dir / f"{shape_id}_{len(inputs)}view{'s' if len(inputs) > 1 else ''}"
+            folder = folder.with_name(f"{folder.name}_refined_{mode}") if mode else folder
             try:
-                summary = reconstruct(predictor, inputs, fusion or BayesianFusion(), folder, settings)
+                mode_settings = dataclasses.replace(settings, refine=mode)
+                summary = reconstruct(predictor, inputs, fusion or BayesianFusion(), folder, mode_settings)
             except EmptySurfaceError as err:
                 log.warning("no mesh for %s from %d view(s): %s", shape_id, len(inputs), err)
                 folder.mkdir(parents=True, exist_ok=True)
                 atomic.write_text(folder / EMPTY_NOTE, f"The fused code's SDF has no zero crossing: {err}\n")
                 continue
-            # The single view's colour scale for the fused one too: less uncertainty looks darker.
-            settings = dataclasses.replace(settings, std_max=float(summary["files"]["std_max"]))
+            # The single view's colour scale for the others too: less uncertainty looks darker.
+            if settings.std_max is None:
+                settings = dataclasses.replace(settings, std_max=float(summary["files"]["std_max"]))
     atomic.write_json(out_dir / SCORES_FILE, score_demo(predictor.decoder, world, out_dir, ids, resolution, codes))
     return out_dir
 
@@ -98,7 +105,7 @@ def score_demo(
             if record.is_file():
                 summary = json.loads(record.read_text())
                 mesh = trimesh.load(folder / "mesh.ply", process=False)
-                code = torch.tensor(summary["fused"]["mu"])
+                code = torch.tensor((summary.get("refinement") or summary["fused"])["mu"])
                 shape_scores[folder.name] = _code_scores(decoder, code, reference, mesh)
         if codes is not None and shape_id in codes.shape_ids:
             try:

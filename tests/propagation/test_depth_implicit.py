@@ -7,15 +7,15 @@ from ushape.data.cameras import R2N2_FOV_DEG, look_at
 from ushape.data.rendering import pixel_rays
 from ushape.decoder.network import DeepSDFDecoder
 from ushape.decoder.query import frozen
-from ushape.propagation.linearised import sdf_gradients
-from ushape.propagation.monte_carlo import sample_codes
-from ushape.reconstruction.depth_implicit import (
+from ushape.propagation.depth_implicit import (
     depth_sensitivity,
     depth_stats,
     depth_uncertainty_implicit,
     std_agreement,
 )
-from ushape.reconstruction.sphere_tracing import DepthStats, depth_uncertainty
+from ushape.propagation.linearised import sdf_gradients
+from ushape.propagation.monte_carlo import sample_codes
+from ushape.propagation.sphere_tracing import DepthStats, depth_uncertainty
 
 NORMAL = torch.tensor([1.0, 0.3, -0.2]) / torch.tensor([1.0, 0.3, -0.2]).norm()
 OFFSET = 0.2

@@ -7,7 +7,7 @@ import torch
 
 from ushape.data.cameras import look_at
 from ushape.propagation.monte_carlo import sample_codes
-from ushape.reconstruction.sphere_tracing import depth_uncertainty, ray_box, sphere_trace
+from ushape.propagation.sphere_tracing import depth_uncertainty, ray_box, sphere_trace
 
 
 class SphereDecoder(torch.nn.Module):

@@ -32,7 +32,7 @@ from ushape.decoder.query import Decoder, check_code_size, check_latent_gaussian
 from ushape.encoder.latent_metrics import spearman_correlation
 from ushape.mesh.extraction import DEFAULT_CHUNK
 from ushape.propagation.linearised import latent_variance, sdf_gradients
-from ushape.reconstruction.sphere_tracing import DepthStats, camera_rays, codes_sdf, depth_uncertainty, sphere_trace
+from ushape.propagation.sphere_tracing import DepthStats, camera_rays, codes_sdf, depth_uncertainty, sphere_trace
 
 DEPTH_METHODS = ("implicit", "mc")
 MIN_COSINE = 0.05

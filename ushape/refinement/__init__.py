@@ -1,0 +1,18 @@
+"""The fused code refined on what calibrated views show (masks, depth): MAP and full-covariance Laplace posterior."""
+
+from ushape.refinement.observation import ObservationSettings, residuals
+from ushape.refinement.posterior import MODES, Posterior, RefineSettings, refine
+from ushape.refinement.views import ObservedView, crop_camera, crop_view, world_views
+
+__all__ = [
+    "MODES",
+    "ObservationSettings",
+    "ObservedView",
+    "Posterior",
+    "RefineSettings",
+    "crop_camera",
+    "crop_view",
+    "refine",
+    "residuals",
+    "world_views",
+]

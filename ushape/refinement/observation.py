@@ -1,0 +1,198 @@
+"""Observation model: what a code z predicts a calibrated view shows, and the Jacobian of that in z.
+
+Silhouette (SDFDiff / DIST style): along each pixel ray, the minimum SDF m(z) over points in the
+decoder's cube [-bound, bound]^3, found on a coarse then a fine sampling of the ray; the pixel's
+predicted occupancy is p = sigmoid(-m / tau). The gradient flows through the argmin point x*:
+dp/dz = -p (1 - p) / tau * ds/dz(x*, z) (the envelope theorem: the argmin's own motion does not
+change m to first order). Only pixels within `band` tau of the surface get a Jacobian; elsewhere
+p (1 - p) is below 1e-3 and the row is 0.
+
+Depth, two models (`depth_residual`):
+  - "surface" (the default; DeepSDF's shape completion, DSP-SLAM's surface term): each depth return,
+    back-projected to the point x = o + d_obs d, should lie on the surface: r = s(x, z), dr/dz = ds/dz(x, z).
+    Exact Jacobian, no tracing, and no blow-up at grazing rays.
+  - "trace": sphere-trace the code's surface (`ushape.propagation.sphere_tracing`) and compare the
+    rendered depth, differentiated implicitly, dt/dz = -(ds/dz) / (ds/dx . d)
+    (`ushape.propagation.depth_implicit`), where the trace hits and the view has a return. On the
+    trained chairs decoder this model measured worse (docs/refinement.md): a trace that reaches another
+    part than the view saw, and the grazing-ray sensitivity, pull the code to shapes the masks allow
+    but the depths do not.
+Silhouettes handle the pixels without a return.
+
+Pixels marked unobserved carry no residual. Rays are taken on a regular sub-grid of the image
+(every `stride`-th pixel per axis) so a 64 px view and a 256 px view cost alike.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, NamedTuple
+
+import torch
+from torch import Tensor
+
+from ushape.decoder.folded import fold_code
+from ushape.propagation.depth_implicit import MIN_COSINE, depth_sensitivity
+from ushape.propagation.linearised import sdf_gradients
+from ushape.propagation.sphere_tracing import camera_rays, ray_box, sphere_trace
+from ushape.refinement.views import ObservedView
+
+PointsSDF = Callable[[Tensor], Tensor]  # points [P, 3] -> sdf [P]
+PointsGradients = Callable[[Tensor], tuple[Tensor, Tensor, Tensor]]  # [P, 3] -> (s [P], ds/dz [P, D], ds/dx [P, 3])
+
+
+@dataclass(frozen=True)
+class ObservationSettings:
+    """How views are compared with a code; every field is a knob of conf/refine/*.yaml."""
+
+    tau: float = 0.01  # silhouette sharpness, in SDF units (the unit-sphere frame)
+    coarse: int = 32  # ray samples for the minimum SDF ...
+    fine: int = 8  # ... and samples around the coarse argmin
+    band: float = 7.0  # rows with |m| / tau past this have p (1 - p) < 1e-3: no Jacobian
+    size: int = 32  # rays per image side (every stride-th pixel)
+    trace_steps: int = 40
+    trace_eps: float = 2e-3
+    bound: float = 1.0
+    min_cosine: float = MIN_COSINE
+    depth_residual: str = "surface"  # "surface" | "trace" (see the module docstring)
+
+
+class Residuals(NamedTuple):
+    """Residuals r [R], their Jacobian dr/dz [R, D], and per-row kind (0 mask, 1 depth) [R]."""
+
+    r: Tensor
+    J: Tensor
+    kind: Tensor
+
+
+def code_functions(decoder: torch.nn.Module, z: Tensor) -> tuple[PointsSDF, PointsGradients]:
+    """(points -> sdf, points -> (sdf, ds/dz, ds/dx)) of the decoder at code z [D], float32, no parameter graph.
+
+    A DeepSDFDecoder is folded at z (plain tensors, hand-written backward); any other decoder goes through autograd.
+    """
+    folded = fold_code(decoder, z)
+    if folded is not None:
+        return (lambda p: folded.sdf(p).float()), (lambda p: tuple(t.float() for t in folded.sdf_and_gradients(p)))
+
+    def sdf(points: Tensor) -> Tensor:
+        with torch.no_grad():
+            return decoder(points, z.expand(points.shape[0], -1)).float()
+
+    def gradients(points: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        s, gz, gx = sdf_gradients(decoder, z, points, with_xyz=True)
+        return s.float(), gz.float(), gx.float()
+
+    return sdf, gradients
+
+
+def view_rays(view: ObservedView, settings: ObservationSettings) -> tuple[Tensor, Tensor, Tensor]:
+    """Ray origins, directions [R, 3] (camera-z component 1) and flat pixel indices [R] of the observed sub-grid."""
+    h, w = view.image_hw
+    origins, directions = camera_rays(view.K, view.world_to_cam, (h, w), settings.trace_steps, settings.trace_eps)
+    stride = max(1, -(-max(h, w) // settings.size))
+    rows = torch.arange(stride // 2, h, stride)
+    cols = torch.arange(stride // 2, w, stride)
+    pixels = (rows[:, None] * w + cols[None, :]).reshape(-1)
+    pixels = pixels[view.seen().reshape(-1)[pixels]]
+    return origins[pixels], directions[pixels], pixels
+
+
+def ray_minimum(
+    sdf: PointsSDF,
+    origins: Tensor,  # [R, 3]
+    directions: Tensor,  # [R, 3]
+    settings: ObservationSettings,
+) -> tuple[Tensor, Tensor]:
+    """Minimum SDF along each ray inside the cube [R] (+inf for a ray that misses it) and its point [R, 3]."""
+    near, far = ray_box(origins, directions, settings.bound)
+    inside = far > near
+    o, d = origins[inside], directions[inside]
+    n, f = near[inside], far[inside]
+    fractions = (torch.arange(settings.coarse) + 0.5) / settings.coarse
+    t = n[:, None] + fractions[None, :] * (f - n)[:, None]  # [R', N]
+    values = sdf((o[:, None, :] + t[..., None] * d[:, None, :]).reshape(-1, 3)).reshape(t.shape)
+    best = t.gather(1, values.argmin(dim=1, keepdim=True))  # [R', 1]
+    step = (f - n)[:, None] / settings.coarse
+    offsets = torch.linspace(-1.0, 1.0, settings.fine)[None, :] * step
+    t = torch.cat([best, (best + offsets).clamp(n[:, None], f[:, None])], dim=1)
+    values = sdf((o[:, None, :] + t[..., None] * d[:, None, :]).reshape(-1, 3)).reshape(t.shape)
+    k = values.argmin(dim=1, keepdim=True)
+    minimum = torch.full((origins.shape[0],), float("inf"))
+    points = origins.clone()
+    minimum[inside] = values.gather(1, k)[:, 0]
+    points[inside] = o + t.gather(1, k) * d
+    return minimum, points
+
+
+def silhouette_residuals(
+    sdf: PointsSDF,
+    gradients: PointsGradients,
+    view: ObservedView,
+    settings: ObservationSettings,
+    latent_size: int,
+) -> tuple[Tensor, Tensor]:
+    """Predicted minus observed occupancy r [R] at the view's observed sub-grid, and dr/dz [R, D]."""
+    origins, directions, pixels = view_rays(view, settings)
+    target = view.mask.reshape(-1)[pixels].float()
+    minimum, points = ray_minimum(sdf, origins, directions, settings)
+    p = torch.sigmoid(-minimum / settings.tau)
+    J = torch.zeros(pixels.shape[0], latent_size)
+    near = (minimum.abs() < settings.band * settings.tau).nonzero().squeeze(1)
+    if near.numel():
+        _, grad_z, _ = gradients(points[near])
+        J[near] = (-(p * (1 - p))[near] / settings.tau)[:, None] * grad_z
+    return p - target, J
+
+
+def depth_residuals(
+    sdf: PointsSDF,
+    gradients: PointsGradients,
+    view: ObservedView,
+    settings: ObservationSettings,
+    latent_size: int,
+) -> tuple[Tensor, Tensor]:
+    """Depth residuals r [R'] and dr/dz [R', D]: the SDF at the back-projected returns ("surface"), or traced
+    minus observed depth where the code's surface and the view both return ("trace")."""
+    if view.depth is None:
+        return torch.zeros(0), torch.zeros(0, latent_size)
+    origins, directions, pixels = view_rays(view, settings)
+    observed = view.depth.reshape(-1)[pixels].float()
+    if settings.depth_residual == "surface":
+        rows = (observed > 0).nonzero().squeeze(1)
+        if rows.numel() == 0:
+            return torch.zeros(0), torch.zeros(0, latent_size)
+        s, grad_z, _ = gradients(origins[rows] + observed[rows, None] * directions[rows])
+        return s, grad_z
+    if settings.depth_residual != "trace":
+        raise ValueError(f"depth_residual must be 'surface' or 'trace', got {settings.depth_residual!r}")
+    t, hit = sphere_trace(
+        lambda x, _code: sdf(x), origins, directions, 1, settings.trace_steps, settings.trace_eps, settings.bound
+    )
+    rows = (hit[0] & (observed > 0)).nonzero().squeeze(1)
+    if rows.numel() == 0:
+        return torch.zeros(0), torch.zeros(0, latent_size)
+    depth = t[0, rows]
+    _, grad_z, grad_x = gradients(origins[rows] + depth[:, None] * directions[rows])
+    J = depth_sensitivity(grad_z, grad_x, directions[rows], settings.min_cosine)
+    return depth - observed[rows], J
+
+
+def residuals(
+    decoder: torch.nn.Module,
+    z: Tensor,  # [D]
+    views: list[ObservedView],
+    settings: ObservationSettings,
+    use_depth: bool,
+) -> Residuals:
+    """Every view's silhouette residuals (and depth residuals where use_depth), stacked, with dr/dz."""
+    sdf, gradients = code_functions(decoder, z.detach().float())
+    rs, Js, kinds = [], [], []
+    for view in views:
+        parts = [silhouette_residuals(sdf, gradients, view, settings, z.shape[0])]
+        if use_depth:
+            parts.append(depth_residuals(sdf, gradients, view, settings, z.shape[0]))
+        for kind, (r, J) in enumerate(parts):
+            rs.append(r)
+            Js.append(J)
+            kinds.append(torch.full((r.shape[0],), kind))
+    return Residuals(torch.cat(rs), torch.cat(Js), torch.cat(kinds))

@@ -1,0 +1,197 @@
+"""The code refined on what the views show: a MAP by Levenberg-Marquardt and its full-covariance Laplace posterior.
+
+Energy, with the fused Gaussian N(mu, Sigma) as the prior and every view's residuals r(z) (masks,
+and depths with use_depth) with per-row weights W = 1 / sigma^2:
+
+    E(z) = 1/2 (z - mu)^T Sigma^-1 (z - mu) + 1/2 sum_i W_i r_i(z)^2.
+
+Each step solves (H + lambda diag H) dz = -g with the Gauss-Newton H = Sigma^-1 + J^T W J and
+g = Sigma^-1 (z - mu) + J^T W r; a step that does not lower E is retried with a larger lambda.
+Depth rows are Huber-weighted (weight min(1, delta / |r|)): a trace that reaches the back leg where
+the view saw the front one must not drag the code. At the optimum z* the Laplace posterior is
+N(z*, (Sigma^-1 + J^T W J)^-1), a full [D, D] covariance: directions of z that no residual moves
+keep the prior's variance exactly, those a view constrains shrink.
+
+No views with a camera, no observed foreground, a non-finite residual, or a code driven past
+`max_mahalanobis` prior standard deviations: the prior is returned unchanged, with `fallback` naming
+why and a warning logged (callers count them from the records).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import torch
+from torch import Tensor
+
+from ushape.decoder.query import frozen
+from ushape.refinement.observation import ObservationSettings, Residuals, residuals
+from ushape.refinement.views import ObservedView, check_view
+
+log = logging.getLogger(__name__)
+MODES = ("masks", "depth")
+
+
+@dataclass(frozen=True)
+class RefineSettings:
+    """What the refinement compares and how hard it trusts it (conf/refine/<mode>.yaml)."""
+
+    mode: str = "masks"  # "masks": silhouettes only; "depth": silhouettes and depth returns
+    sigma_mask: float = 0.5  # occupancy residual's std per ray
+    sigma_depth: float = 0.02  # depth residual's std per ray (unit-sphere frame)
+    huber_depth: float = 0.05  # depth residuals past this are down-weighted
+    iterations: int = 15
+    damping: float = 1e-3  # initial lambda
+    tolerance: float = 1e-4  # stop when E falls by less than this fraction
+    max_mahalanobis: float = 60.0  # ||z* - mu|| in prior stds past this counts as diverged
+    observation: ObservationSettings = field(default_factory=ObservationSettings)
+
+
+@dataclass
+class Posterior:
+    """The refined Gaussian N(mu [D], cov [D, D]) and how it was reached (record() for summary.json)."""
+
+    mu: Tensor
+    cov: Tensor
+    iterations: int = 0
+    energy_start: float = float("nan")
+    energy_end: float = float("nan")
+    rows: dict[str, int] = field(default_factory=dict)
+    rms: dict[str, float] = field(default_factory=dict)
+    fallback: str | None = None
+
+    @property
+    def var(self) -> Tensor:  # [D]
+        return torch.diagonal(self.cov)
+
+    def record(self) -> dict[str, Any]:
+        return {
+            "iterations": self.iterations,
+            "energy_start": self.energy_start,
+            "energy_end": self.energy_end,
+            "rows": self.rows,
+            "rms_residual": self.rms,
+            "fallback": self.fallback,
+            "trace_cov": float(self.var.sum()),
+        }
+
+
+def prior_precision(var: Tensor) -> Tensor:
+    """Sigma^-1 [D, D] of a diagonal var [D] or a full covariance [D, D], float64."""
+    var = var.detach().double()
+    if var.ndim == 1:
+        if not bool((var > 0).all()):
+            raise ValueError("the prior variance must be positive in every dimension")
+        return torch.diag(1.0 / var)
+    if var.ndim == 2 and var.shape[0] == var.shape[1]:
+        return torch.linalg.inv(0.5 * (var + var.T))
+    raise ValueError(f"the prior variance must be [D] or [D, D], got shape {tuple(var.shape)}")
+
+
+def row_weights(res: Residuals, settings: RefineSettings) -> Tensor:
+    """W [R]: 1 / sigma^2 per row kind, Huber-down-weighted on depth."""
+    w = torch.where(res.kind == 0, 1.0 / settings.sigma_mask**2, 1.0 / settings.sigma_depth**2).double()
+    huber = (settings.huber_depth / res.r.double().abs().clamp_min(1e-12)).clamp(max=1.0)
+    return torch.where(res.kind == 1, w * huber, w)
+
+
+def energy(z: Tensor, mu: Tensor, precision: Tensor, res: Residuals, w: Tensor) -> float:
+    dz = (z - mu).double()
+    return float(0.5 * dz @ precision @ dz + 0.5 * (w * res.r.double().square()).sum())
+
+
+def fallback(mu: Tensor, var: Tensor, reason: str, **known: Any) -> Posterior:
+    """The prior as the posterior, with the reason logged."""
+    log.warning("refinement fell back to the prior: %s", reason)
+    cov = torch.diag(var.detach().float()) if var.ndim == 1 else var.detach().float()
+    return Posterior(mu.detach().float().clone(), cov.clone(), fallback=reason, **known)
+
+
+def summarise(res: Residuals) -> tuple[dict[str, int], dict[str, float]]:
+    rows, rms = {}, {}
+    for kind, name in enumerate(MODES):
+        r = res.r[res.kind == kind]
+        rows[name] = int(r.numel())
+        rms[name] = float(r.square().mean().sqrt()) if r.numel() else float("nan")
+    return rows, rms
+
+
+def refine(
+    decoder: torch.nn.Module,
+    mu: Tensor,  # [D] the prior's mean (the fused code)
+    var: Tensor,  # [D] or [D, D] the prior's variance
+    views: Sequence[ObservedView | None],  # None: a view without a camera (not refined)
+    settings: RefineSettings = RefineSettings(),
+) -> Posterior:
+    """MAP code and full-covariance Laplace posterior of the prior N(mu, var) given the views' masks (and depth)."""
+    if settings.mode not in MODES:
+        raise ValueError(f"refine mode must be one of {MODES}, got {settings.mode!r}")
+    missing = [i for i, v in enumerate(views) if v is None]
+    if missing:
+        log.warning("views %s have no camera: they are not refined (pass a camera file for them)", missing)
+    views = [v for v in views if v is not None]
+    for view in views:
+        check_view(view)
+    if not views:
+        return fallback(mu, var, "no view has a camera")
+    if not any(bool((v.mask.reshape(-1)[v.seen().reshape(-1)] > 0.5).any()) for v in views):
+        return fallback(mu, var, "no view shows the object (empty masks)")
+    precision = prior_precision(var)
+    prior_mu = mu.detach().double()
+    use_depth = settings.mode == "depth"
+    with frozen(decoder):
+        return levenberg_marquardt(decoder, prior_mu, var, precision, views, settings, use_depth)
+
+
+def levenberg_marquardt(
+    decoder: torch.nn.Module,
+    mu: Tensor,  # [D] float64
+    var: Tensor,
+    precision: Tensor,  # [D, D] float64
+    views: list[ObservedView],
+    settings: RefineSettings,
+    use_depth: bool,
+) -> Posterior:
+    """The damped Gauss-Newton loop of `refine`, from the prior's mean; the Laplace covariance at its end."""
+    obs = settings.observation
+    z, res = mu.clone(), residuals(decoder, mu.float(), views, obs, use_depth)
+    w = row_weights(res, settings)
+    start = e = energy(z, mu, precision, res, w)
+    lam, steps = settings.damping, 0
+    for steps in range(1, settings.iterations + 1):
+        if not (torch.isfinite(res.r).all() and torch.isfinite(res.J).all()):
+            return fallback(mu, var, "non-finite residual or Jacobian", iterations=steps, energy_start=start)
+        J = res.J.double()
+        H = precision + J.T @ (w[:, None] * J)
+        g = precision @ (z - mu) + J.T @ (w * res.r.double())
+        improved = False
+        for _ in range(6):
+            dz = torch.linalg.solve(H + lam * torch.diag(torch.diagonal(H)), -g)
+            trial = z + dz
+            trial_res = residuals(decoder, trial.float(), views, obs, use_depth)
+            trial_w = row_weights(trial_res, settings)
+            trial_e = energy(trial, mu, precision, trial_res, trial_w)
+            if trial_e < e:  # NaN compares False: a non-finite trial is rejected like a worse one
+                improved = True
+                break
+            lam *= 4.0
+        if not improved:
+            break
+        z, res, w, lam = trial, trial_res, trial_w, max(lam / 3.0, 1e-7)
+        done = (e - trial_e) < settings.tolerance * max(e, 1e-12)
+        e = trial_e
+        if done:
+            break
+    J = res.J.double()
+    cov = torch.linalg.inv(precision + J.T @ (w[:, None] * J))
+    cov = 0.5 * (cov + cov.T)
+    distance = float(torch.sqrt((z - mu) @ precision @ (z - mu)))
+    rows, rms = summarise(res)
+    known = dict(iterations=steps, energy_start=start, energy_end=e, rows=rows, rms=rms)
+    if not (torch.isfinite(z).all() and torch.isfinite(cov).all()):
+        return fallback(mu, var, "non-finite code or covariance", **known)
+    if distance > settings.max_mahalanobis:
+        return fallback(mu, var, f"diverged ({distance:.1f} prior stds from the fused code)", **known)
+    return Posterior(z.float(), cov.float(), **known)
