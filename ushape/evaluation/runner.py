@@ -17,12 +17,13 @@ import json
 import logging
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from ushape.data.layout import WorldIndex
 from ushape.decoder.artifacts import codes_file, load_codes
+from ushape.decoder.precision import check_precision, resolve_precision
 from ushape.evaluation import protocols as P
 from ushape.evaluation.active import active_records, check_active_settings, save_active_sequence
 from ushape.evaluation.depth_calibration import depth_calibration_rows
@@ -60,7 +61,7 @@ class Settings:
     table4_k: int = 4
     resolution: int = 64
     n_points: int = 1024
-    bf16: bool = False
+    precision: str = "auto"  # the decoder's: fp32, bf16, or auto (resolved by evaluate_runs)
     single_view_scales: Sequence[float] = (1.0, 0.1, 0.01)
     single_view_views: int | None = None
     corrupted_scales: Sequence[float] = (0.8, 0.4, 0.2, 0.1, 0.01)
@@ -102,6 +103,7 @@ class Settings:
                 f"got {list(self.depth_methods)}, {self.depth_size}, {self.depth_codes}"
             )
         check_active_settings(self)
+        check_precision(self.precision)
 
 
 def evaluate_encoder(
@@ -247,6 +249,9 @@ def evaluate_runs(
     """Load every run folder's encoder and evaluate them all (see `evaluate_all`)."""
     if not run_dirs:
         raise ValueError("no runs to evaluate: pass runs=[<run folder>, ...] or sweep=<multirun folder>")
+    requested = settings.precision
+    resolved, why = resolve_precision(requested)  # the decoders are loaded onto the CPU
+    settings = replace(settings, precision=resolved)
     taken: set[str] = set()
     opened: dict[Path, WorldIndex] = {}
     runs = [load_encoder(run_dir, settings, cache_dir, taken, world_dir, temperature, opened) for run_dir in run_dirs]
@@ -254,6 +259,7 @@ def evaluate_runs(
     result = evaluate_all([v for v, _ in variants], settings, cache_dir, setting, showcase_dir)
     for run, run_dir in variants:
         result["runs"][run.spec.name]["run_dir"] = str(run_dir)
+    result["precision"] = {"requested": requested, "resolved": resolved, "why": why}
     return result
 
 

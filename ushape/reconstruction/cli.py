@@ -2,7 +2,7 @@
 
     python reconstruct.py IMAGE [IMAGE ... | FOLDER] [--run RUN | --checkpoint CKPT] [--out DIR]
         [--fusion average|bayesian|bayesian_k] [--k 4] [--uncertainty mc|linearised]
-        [--resolution 128] [--depth-method implicit|mc] [--temperature] [--std-max S] ...
+        [--resolution 128] [--depth-method implicit|mc] [--precision auto|fp32|bf16] [--temperature] ...
     python reconstruct.py --fit-temperature [--run RUN | --checkpoint CKPT]
 
 Without --run/--checkpoint the newest encoder run under ./outputs/runs is used. The fusion rule is
@@ -23,6 +23,7 @@ from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
+from ushape.decoder.precision import PRECISIONS
 from ushape.fusion.rules import check_k
 from ushape.mesh.extraction import EmptySurfaceError
 from ushape.propagation.mesh import METHODS
@@ -87,6 +88,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="top of the colour scale (default: the 99th percentile of the mesh's stds)",
     )
     parser.add_argument("--cmap", default="inferno", help="matplotlib colormap for the std colours")
+    parser.add_argument(
+        "--precision",
+        default="auto",
+        choices=PRECISIONS,
+        help="decoder precision: auto (bf16 on AMX CPUs and CUDA >= 8.0, else fp32), fp32 or bf16",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default=None, help=f"output folder (default {DEFAULT_OUT}/<time>)")
     return parser
@@ -115,6 +122,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             std_max=args.std_max,
             cmap=args.cmap,
             seed=args.seed,
+            precision=args.precision,
         )
         out = Path(args.out) if args.out else DEFAULT_OUT / time.strftime("%Y-%m-%d_%H-%M-%S")
         summary = reconstruct(predictor, files, fusion, out, settings)
