@@ -50,6 +50,9 @@ def test_eval_writes_tables_and_the_setting_row_for_a_real_run(sphere_world, tmp
         warnings.simplefilter("ignore")
         iou = run_eval(cfg)
     assert 0 <= iou <= 1
+    results = json.loads((out / "results.json").read_text())
+    assert results["precision"]["requested"] == "auto"  # protocol=quick's default, resolved once
+    assert results["settings"]["precision"] == results["precision"]["resolved"] in ("fp32", "bf16")
     row = json.loads((out / "eval_row.json").read_text())[0]
     assert (row["label"], row["fusion"], row["n_views"]) == ("Ours-NLL", "bayesian-3", 4)  # 2 shapes x 2 views
     assert "Table 1" in (out / "tables.md").read_text() and "Table S1" in capsys.readouterr().out
