@@ -25,6 +25,8 @@ DECODER_ROWS = [
     "field uncertainty mc M=10 narrow band",
     "depth uncertainty mc M=10 (2 views)",
     "depth uncertainty implicit (2 views)",
+    "mesh with uncertainty (c2f + linearised), fp32",
+    "mesh with uncertainty (c2f + linearised), bf16",
 ]
 
 
@@ -54,11 +56,18 @@ def test_quick_bench_writes_the_whole_table(tmp_path, capsys):
     assert _seconds(rows["fusion bayesian"][0]) > 0 and rows["fusion bayesian"][1] == "0.1 ms"
     assert re.search(r"< 0\.1 ms (pass|miss)", rows["fusion bayesian"][2])
     ratios = [line for line in text.splitlines() if line.startswith("| ") and "x |" in line]
-    assert len(ratios) == 22  # 11 ratios x 2 decoders
+    assert len(ratios) == 26  # 13 ratios x 2 decoders
     assert sum(("pass" in r) or ("miss" in r) for r in ratios) == 12  # 6 with a target x 2 decoders
     assert "fallback: None" in rows["refine masks (2 views, 16 px)"][3]
     assert "variance at" in rows["field uncertainty linearised narrow band"][3]
     assert "faster than MC M=10" in rows["depth uncertainty implicit (2 views)"][3]
+    # auto beside fp32 and bf16, the resolved choice printed, the contract's figures in the notes
+    auto = next(name for name in rows if name.startswith("mesh with uncertainty (c2f + linearised), auto (-> "))
+    resolved = auto.removesuffix(")").rsplit(" ", 1)[-1]
+    assert resolved in ("fp32", "bf16") and f"Precision `auto` on this machine: {resolved} (" in text
+    assert _seconds(rows[auto][0]) > 0 and _seconds(rows[auto][1]) > 0
+    assert "vs fp32: Chamfer" in rows["mesh with uncertainty (c2f + linearised), bf16"][3]
+    assert "contract met" in rows["mesh with uncertainty (c2f + linearised), bf16"][3]
 
 
 def test_ratios_and_verdicts_from_known_timings():
@@ -79,6 +88,9 @@ def test_ratios_and_verdicts_from_known_timings():
             Measurement("field uncertainty mc M=10 narrow band", 0.6),
             Measurement("depth uncertainty mc M=10 (12 views)", 9.0),
             Measurement("depth uncertainty implicit (12 views)", 1.0),
+            Measurement("mesh with uncertainty (c2f + linearised), fp32", 2.0),
+            Measurement("mesh with uncertainty (c2f + linearised), bf16", 0.8),
+            Measurement("mesh with uncertainty (c2f + linearised), auto (-> bf16)", 0.9),
         ],
     )
     got = {name: (value, passed) for name, value, _, passed in ratio_rows(bench)}
@@ -88,6 +100,8 @@ def test_ratios_and_verdicts_from_known_timings():
     assert got["narrow-band field w/ unc (linearised) / field"] == (0.15, True)
     assert got["narrow-band field w/ unc (MC M=10) / field"] == (0.6, None)
     assert got["depth unc MC M=10 / implicit (speed-up)"] == (9.0, False)
+    assert got["mesh w/ unc (linearised) bf16 / fp32"] == (0.4, None)
+    assert got["mesh w/ unc (linearised) auto / fp32"] == (0.45, None)
     assert got["vertex linearised per vertex / field linearised per point"][0] == pytest.approx(
         (0.02 / 10) / (1.5 / 1000)
     )

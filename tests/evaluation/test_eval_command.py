@@ -50,6 +50,9 @@ def test_eval_writes_tables_and_the_setting_row_for_a_real_run(sphere_world, tmp
         warnings.simplefilter("ignore")
         iou = run_eval(cfg)
     assert 0 <= iou <= 1
+    results = json.loads((out / "results.json").read_text())
+    assert results["precision"]["requested"] == "auto"  # protocol=quick's default, resolved once
+    assert results["settings"]["precision"] == results["precision"]["resolved"] in ("fp32", "bf16")
     row = json.loads((out / "eval_row.json").read_text())[0]
     assert (row["label"], row["fusion"], row["n_views"]) == ("Ours-NLL", "bayesian-3", 4)  # 2 shapes x 2 views
     assert "Table 1" in (out / "tables.md").read_text() and "Table S1" in capsys.readouterr().out
@@ -59,12 +62,14 @@ def test_eval_writes_tables_and_the_setting_row_for_a_real_run(sphere_world, tmp
         run_eval(cfg)
     assert [p.parent.parent for p in run_dir.glob("eval/*/tables.md")] == [run_dir / "eval"]
     cfg.temperature = True  # asked for, but never fitted for this run
-    with pytest.raises(FileNotFoundError, match="temperature.json"):
+    with pytest.raises(SystemExit) as stop:  # bad input: one line naming the missing file, exit 2
         run_eval(cfg)
+    assert stop.value.code == 2 and "temperature.json" in capsys.readouterr().err
 
 
-def test_eval_explains_a_missing_run(tmp_path):
+def test_eval_explains_a_missing_run(tmp_path, capsys):
     cfg = _compose([f"runs=[{tmp_path / 'missing'}]"])
     cfg.out_dir = str(tmp_path)
-    with pytest.raises(FileNotFoundError, match="do not exist"):
+    with pytest.raises(SystemExit) as stop:  # bad input: one line, exit 2
         run_eval(cfg)
+    assert stop.value.code == 2 and "do not exist" in capsys.readouterr().err

@@ -88,3 +88,37 @@ def test_resolution_below_the_coarse_grid_still_meshes():
     dense, _ = extract_mesh(sphere, 16, method="dense")
     small, _ = extract_mesh(sphere, 16, method="coarse_to_fine", coarse_resolution=32)
     assert np.allclose(np.sort(small.vertices, 0), np.sort(dense.vertices, 0))
+
+
+@pytest.mark.parametrize("method", ["dense", "coarse_to_fine"])
+def test_surface_fn_places_every_vertex_from_the_exact_sdf(method):
+    """An approximation off by 0.3 of a cell still decides where to look; the exact SDF places the vertices."""
+    exact = chair_like
+    voxel = 2.0 / 47
+
+    def approximate(p):  # wrong by up to 0.3 of a cell, as bf16's rounded query points make a decoder
+        return exact(p) + 0.3 * voxel * torch.sin(40.0 * p).sum(dim=-1) / 3
+
+    reference, _ = extract_mesh(exact, 48, method)
+    raw, raw_stats = extract_mesh(approximate, 48, method)
+    fixed, stats = extract_mesh(approximate, 48, method, surface_fn=exact)
+    assert raw.vertices.shape != reference.vertices.shape or not np.allclose(raw.vertices, reference.vertices)
+    assert np.array_equal(fixed.faces, reference.faces)
+    assert np.allclose(fixed.vertices, reference.vertices, atol=1e-6)
+    assert stats.evaluations > raw_stats.evaluations  # the exact evaluations are counted
+
+
+def test_exact_surface_evaluates_only_the_corners_of_crossing_cells():
+    from ushape.mesh.extraction import exact_surface, sdf_grid, surface_cell_corners
+
+    grid = sdf_grid(sphere(0.5), 32)
+    calls = []
+
+    def exact(p):
+        calls.append(p.shape[0])
+        return sphere(0.5)(p)
+
+    fixed, count = exact_surface(grid + 1e-3, exact)
+    assert count == int(surface_cell_corners(grid).sum()) == sum(calls)
+    band = surface_cell_corners(grid)
+    assert torch.allclose(fixed[band], grid[band]) and torch.allclose(fixed[~band], grid[~band] + 1e-3)

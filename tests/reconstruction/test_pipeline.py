@@ -54,6 +54,8 @@ def test_reconstruct_writes_every_output(tiny_run, sphere_predictor, tmp_path):
     out = tmp_path / "out"
     assert json.loads((out / "summary.json").read_text()) == summary
     assert len(summary["views"]) == 3 and summary["fusion"] == "bayesian-2"
+    assert summary["precision"]["requested"] == summary["settings"]["precision"] == "auto"
+    assert summary["precision"]["resolved"] in ("fp32", "bf16") and summary["precision"]["why"]
     assert summary["fused"]["kept"] == sorted(summary["fused"]["kept"]) and len(summary["fused"]["kept"]) == 2
     traces = [v["trace_var"] for v in summary["views"]]
     dropped = [i for i, v in enumerate(summary["views"]) if not v["kept"]]
@@ -142,6 +144,7 @@ def test_depth_method_mc_and_implicit_both_run_and_the_summary_says_which(
                     "3",
                     "--depth-method",
                     method,
+                    *(["--precision", "bf16"] if method == "mc" else []),
                 ]
             )
             == 0
@@ -168,6 +171,7 @@ def test_depth_method_mc_and_implicit_both_run_and_the_summary_says_which(
         )
     with pytest.raises(SystemExit):
         main([str(views[0]), "--depth-method", "sampled"])
+    assert summaries["mc"]["precision"] == {"requested": "bf16", "resolved": "bf16", "why": "asked for"}
 
 
 class CorrelatedFusion:

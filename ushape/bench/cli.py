@@ -21,6 +21,7 @@ from typing import Sequence
 from ushape import atomic
 from ushape.bench.computation import BenchSettings, run_bench
 from ushape.bench.report import markdown_report
+from ushape.decoder.precision import resolve_precision
 from ushape.errors import InputError
 
 DEFAULT_OUT_DIR = Path("outputs") / "bench"
@@ -58,7 +59,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.deepsdf_fraction <= 0 or args.deepsdf_fraction > 1:
         raise InputError(f"--deepsdf-fraction must be in (0, 1], got {args.deepsdf_fraction}")
     resolution = args.resolution or (32 if args.quick else 128)
+    precision, why = resolve_precision("auto")
+    print(f"precision auto -> {precision}: {why}")
     settings = BenchSettings(
+        precision=precision,
+        precision_why=why,
         resolution=resolution,
         repeats=args.repeats,
         skip_slow=args.skip_slow,

@@ -22,7 +22,8 @@ from hydra.utils import instantiate
 from omegaconf import OmegaConf
 from torch import nn
 
-from ushape.bench.depth import depth_rows
+from ushape.bench.contract import precision_rows
+from ushape.bench.depth import depth_rows, orbit_cameras
 from ushape.bench.fitted import fitted_decoder
 from ushape.bench.refine import refine_rows
 from ushape.bench.timing import Measurement, timed
@@ -51,6 +52,9 @@ class BenchSettings:
     depth_var: float = 0.001  # per-dimension latent variance of their Gaussian
     refine_views: int = 12  # views of the refinement rows (0: skip them)
     refine_size: int = 64  # their pixels per side
+    precision: str = "fp32"  # what `precision: auto` resolved to on this machine (bench.py resolves it)
+    precision_why: str = ""
+    precision_rows: bool = True  # time the mesh with uncertainty in fp32, bf16 and auto, with the contract
 
 
 def bench_decoder(
@@ -186,10 +190,13 @@ def decoder_rows(decoder: nn.Module, code: torch.Tensor, settings: BenchSettings
             continue
         rows.append(_field_uncertainty_row(decoder, code, var, settings, method))
     rows += narrow_band_rows(decoder, code, var, settings)
+    # A fused multi-view posterior's spread, not the codes' prior one (0.01): first-order depth is
+    # meant for a Gaussian whose samples land on the same parts of the object.
+    depth_var = torch.full_like(code, settings.depth_var)
+    if settings.precision_rows:
+        cameras = orbit_cameras(settings.depth_views, settings.depth_size) if settings.depth_views > 0 else ()
+        rows += precision_rows(decoder, code, var, n, settings.precision, reps, cameras, settings.depth_size, depth_var)
     if settings.depth_views > 0:
-        # A fused multi-view posterior's spread, not the codes' prior one (0.01): first-order depth is
-        # meant for a Gaussian whose samples land on the same parts of the object.
-        depth_var = torch.full_like(code, settings.depth_var)
         rows += depth_rows(
             decoder,
             code,

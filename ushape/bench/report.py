@@ -9,6 +9,7 @@ from typing import Sequence
 import torch
 
 from ushape.bench.computation import BenchSettings, DecoderBench, Measurement
+from ushape.bench.contract import PRECISION_ROW
 
 # The paper's computation table (one A100, 8 x 512 DeepSDF decoder, resolution 128), seconds.
 MESH_WITH_UNCERTAINTY = "mesh with uncertainty (coarse-to-fine + vertex linearised)"
@@ -103,6 +104,9 @@ def ratio_rows(bench: DecoderBench) -> list[tuple[str, float | None, str, bool |
     bf16 = next((r.seconds for r in bench.rows if r.name.startswith("decoder field") and "bf16" in r.name), None)
     refine_masks = next((r.seconds for r in bench.rows if r.name.startswith("refine masks")), None)
     refine_ratio = _ratio(refine_masks, _total(bench, "mesh coarse-to-fine", "vertex uncertainty linearised"))
+    mesh32 = bench.seconds(f"{PRECISION_ROW}, fp32")
+    mesh_bf16 = _ratio(bench.seconds(f"{PRECISION_ROW}, bf16"), mesh32)
+    mesh_auto = _ratio(bench.seconds(f"{PRECISION_ROW}, auto"), mesh32)
 
     def check(value: float | None, target: float) -> bool | None:
         return None if value is None else value <= target
@@ -131,6 +135,8 @@ def ratio_rows(bench: DecoderBench) -> list[tuple[str, float | None, str, bool |
             check(mesh_mc, MESH_TARGET),
         ),
         ("field bf16 / field fp32", _ratio(bf16, field), "(< 1: bf16 faster)", None),
+        ("mesh w/ unc (linearised) bf16 / fp32", mesh_bf16, "(< 1: bf16 faster)", None),
+        ("mesh w/ unc (linearised) auto / fp32", mesh_auto, "(1 where auto is fp32; AMX: <= 0.5)", None),
         ("vertex linearised per vertex / field linearised per point", per_vertex, "(1: at the per-point floor)", None),
         (
             "depth unc MC M=10 / implicit (speed-up)",
@@ -172,6 +178,8 @@ def markdown_report(shared: Sequence[Measurement], benches: Sequence[DecoderBenc
         f"{torch.get_num_threads()} threads, CPU only, 1-min load average {os.getloadavg()[0]:.1f} when written "
         f"(other jobs on the machine slow every row alike). Medians of {settings.repeats} run(s) per decoder row, "
         f"{settings.fusion_repeats} per fusion row.",
+        "",
+        f"Precision `auto` on this machine: {settings.precision} ({settings.precision_why or 'not resolved'}).",
         "",
     ]
     for bench in benches:

@@ -32,7 +32,7 @@ from ushape.metrics.pix3d import (
     pix3d_metrics,
     reference_from_mesh,
 )
-from ushape.propagation.field import decode_field
+from ushape.propagation.field import surface_field
 
 # An empty reconstruction overlaps nothing; CD and EMD have no value.
 EMPTY_SCORES = {"iou": 0.0, "cd": math.nan, "emd": math.nan}
@@ -63,7 +63,7 @@ def grid_inside_fn(grid: Tensor) -> InsideFn:
 
 def decode_mesh(decoder, code: Tensor, resolution: int, bf16: bool = False) -> trimesh.Trimesh:
     """Mesh of the decoder's zero level set for one code [D] (marching cubes on the dense grid)."""
-    return marching_cubes(decode_field(decoder, code, resolution, bf16=bf16))
+    return marching_cubes(surface_field(decoder, code, resolution, bf16=bf16))
 
 
 class Reconstructor:
@@ -112,7 +112,7 @@ class Reconstructor:
         try:
             # Dense on purpose: a decoder trained on SDFs clamped at 0.1 saturates away from the surface,
             # so coarse-to-fine pruning would evaluate nearly every point anyway, plus its overhead.
-            grid = decode_field(self.decoder, code, self.resolution, bf16=self.bf16)
+            grid = surface_field(self.decoder, code, self.resolution, bf16=self.bf16)
             mesh = marching_cubes(grid)
             result = pix3d_metrics(
                 mesh, grid_inside_fn(grid), self.reference(shape_id), emd=emd or (cached or {}).get("emd") is not None

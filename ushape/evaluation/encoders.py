@@ -90,7 +90,13 @@ def load_encoder(
     decoder_dir = decoder_dir_of(predictor)
     tag = f"{decoder_dir.resolve()}|{(decoder_dir / 'decoder.pt').stat().st_mtime_ns}"
     reconstructor = Reconstructor(
-        predictor.decoder, tag, world, settings.resolution, cache_dir, n_points=settings.n_points, bf16=settings.bf16
+        predictor.decoder,
+        tag,
+        world,
+        settings.resolution,
+        cache_dir,
+        n_points=settings.n_points,
+        bf16=settings.precision == "bf16",
     )
     ids = world.shape_ids(settings.split)[: settings.max_shapes]
     return EncoderRun(spec, predictor, world, reconstructor, decoder_dir, test_views(world, settings.split, ids))

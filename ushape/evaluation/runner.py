@@ -17,10 +17,12 @@ import json
 import logging
 import math
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from ushape.data.layout import WorldIndex
+from ushape.decoder.precision import resolve_precision
 from ushape.evaluation import protocols as P
 from ushape.evaluation.context import EvalContext
 from ushape.evaluation.encoders import EncoderRun, load_encoder, mask_variants
@@ -103,6 +105,9 @@ def evaluate_runs(
     """Load every run folder's encoder and evaluate them all (see `evaluate_all`)."""
     if not run_dirs:
         raise ValueError("no runs to evaluate: pass runs=[<run folder>, ...] or sweep=<multirun folder>")
+    requested = settings.precision
+    resolved, why = resolve_precision(requested)  # the decoders are loaded onto the CPU
+    settings = replace(settings, precision=resolved)
     taken: set[str] = set()
     opened: dict[Path, WorldIndex] = {}
     runs = [load_encoder(run_dir, settings, cache_dir, taken, world_dir, temperature, opened) for run_dir in run_dirs]
@@ -112,6 +117,7 @@ def evaluate_runs(
         for method in [None, *methods]:
             name = run.spec.name if method is None else f"{run.spec.name}+{method.name}"
             result["runs"][name]["run_dir"] = str(run_dir)
+    result["precision"] = {"requested": requested, "resolved": resolved, "why": why}
     return result
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Sequence
 
+from ushape.decoder.precision import check_precision
 from ushape.evaluation.active import check_active_settings
 from ushape.evaluation.protocols import GROUP_SIZE
 from ushape.propagation import SDF_CLAMP
@@ -32,7 +33,7 @@ class Settings:
     table4_k: int = 4
     resolution: int = 64
     n_points: int = 1024
-    bf16: bool = False
+    precision: str = "auto"  # the decoder's: fp32, bf16, or auto (resolved by evaluate_runs)
     single_view_scales: Sequence[float] = (1.0, 0.1, 0.01)
     single_view_views: int | None = None
     corrupted_scales: Sequence[float] = (0.8, 0.4, 0.2, 0.1, 0.01)
@@ -71,3 +72,4 @@ class Settings:
                 f"got {list(self.depth_methods)}, {self.depth_size}, {self.depth_codes}"
             )
         check_active_settings(self)
+        check_precision(self.precision)

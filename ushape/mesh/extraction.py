@@ -19,6 +19,7 @@ import torch
 import trimesh
 from skimage import measure
 from torch import Tensor
+from torch.nn import functional as F
 
 SDFFn = Callable[[Tensor], Tensor]
 
@@ -107,11 +108,15 @@ def extract_mesh(
     chunk: int = DEFAULT_CHUNK,
     coarse_resolution: int = 32,
     safety: float = 1.2,
+    surface_fn: SDFFn | None = None,
 ) -> tuple[trimesh.Trimesh, ExtractionStats]:
     """Mesh of the SDF's zero level set over [-1, 1]^3 at N^3 grid resolution, with its cost.
 
     "coarse_to_fine" gives the same mesh as "dense" when |sdf| under-estimates nothing by more than
     the factor `safety` (see `coarse_to_fine_grid`); raises EmptySurfaceError if there is no surface.
+    With `surface_fn` (the exact SDF where sdf_fn is a fast approximation of it, e.g. bf16), the grid
+    points that place the vertices are evaluated by surface_fn (`exact_surface`); their count is in
+    the stats' evaluations.
     """
     if method == "dense":
         grid, evaluations = sdf_grid(sdf_fn, resolution, chunk), resolution**3
@@ -121,7 +126,42 @@ def extract_mesh(
         grid, evaluations = coarse_to_fine_grid(sdf_fn, resolution, coarse, safety, chunk)
     else:
         raise ValueError(f"unknown extraction method {method!r}: use 'dense' or 'coarse_to_fine'")
+    if surface_fn is not None:
+        grid, exact = exact_surface(grid, surface_fn, chunk)
+        evaluations += exact
     return marching_cubes(grid), ExtractionStats(resolution, evaluations, method)
+
+
+def surface_cell_corners(sdf: Tensor, widen: int = 0) -> Tensor:  # [N, N, N] -> bool [N, N, N]
+    """Grid points that are corners of a cell whose 8 corner values change sign, widened by `widen` cells."""
+    inside = (sdf < 0).float()[None, None]
+    any_in = F.max_pool3d(inside, 2, stride=1)
+    all_in = -F.max_pool3d(-inside, 2, stride=1)
+    crossing = (any_in > all_in).float()  # [1, 1, N-1, N-1, N-1]
+    corners = F.max_pool3d(crossing, 2, stride=1, padding=1)  # back to points: [1, 1, N, N, N]
+    if widen > 0:
+        corners = F.max_pool3d(corners, 2 * widen + 1, stride=1, padding=widen)
+    return corners[0, 0] > 0
+
+
+def exact_surface(grid: Tensor, surface_fn: SDFFn, chunk: int = DEFAULT_CHUNK) -> tuple[Tensor, int]:
+    """The grid [N, N, N] over [-1, 1]^3 with every value marching cubes reads evaluated by surface_fn.
+
+    Marching cubes places vertices only from the corners of cells whose corners change sign. Those
+    corners are re-evaluated by surface_fn; where that flips a sign, the newly crossing cells' corners
+    are too, until no crossing cell has a corner left from the approximate grid. The mesh is then the
+    one the exact SDF gives, wherever the approximate grid found its surface at all (a cell the
+    approximation puts wholly on one side, and the exact SDF not, stays unseen: that needs an error
+    larger than the cell). -> (grid, points evaluated by surface_fn)
+    """
+    grid, n = grid.clone(), grid.shape[0]
+    exact = torch.zeros(grid.shape, dtype=torch.bool)
+    while True:
+        todo = surface_cell_corners(grid) & ~exact
+        if not bool(todo.any()):
+            return grid, int(exact.sum())
+        grid[todo] = evaluate_sdf(surface_fn, _index_to_coordinate(todo.nonzero(), n), chunk)
+        exact |= todo
 
 
 def coarse_to_fine_grid(

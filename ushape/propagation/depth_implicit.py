@@ -64,11 +64,13 @@ def depth_uncertainty_implicit_views(
     eps: float = 2e-3,
     min_cosine: float = MIN_COSINE,
     chunk: int = DEFAULT_CHUNK,
+    bf16: bool = False,
 ) -> list[DepthStats]:
     """Per view, the depth of the mean code's surface and its first-order std [H, W]; hit_rate 1 (hit) or 0.
 
     Every view's rays are traced together: one decoder call per step serves all of them, which is
     what makes one trace of V views cheaper than V traces (most steps march only a few rays).
+    bf16 traces under bf16 autocast; the gradients at the hits stay fp32.
     """
     check_latent_gaussian(mu, var)
     check_code_size(decoder, mu.shape[0])
@@ -82,7 +84,8 @@ def depth_uncertainty_implicit_views(
     with frozen(decoder), torch.no_grad():
         # A DeepSDFDecoder is traced and differentiated with the mean code folded in (no autograd).
         folded = fold_code(decoder, mu)
-        trace_sdf = codes_sdf(decoder, mu[None]) if folded is None else (lambda points, _code: folded.sdf(points))
+        by_module = folded is None or bf16  # the fold runs in fp32 only
+        trace_sdf = codes_sdf(decoder, mu[None], bf16) if by_module else (lambda points, _code: folded.sdf(points))
         t, hit = sphere_trace(trace_sdf, origins, directions, 1, steps, eps)
         t, hit = t[0], hit[0]
         pixels = hit.nonzero().squeeze(1)
@@ -130,15 +133,16 @@ def depth_stats(
     method: str = "implicit",
     codes: Tensor | None = None,  # [M, D] drawn from N(mu, var), for method "mc"
     steps: int = 50,
+    bf16: bool = False,
 ) -> list[DepthStats]:
     """Depth mean/std [H, W] per camera by either method: "implicit" (mu, var; one trace for all views)
     or "mc" (the codes, traced view by view)."""
     if method == "implicit":
-        return depth_uncertainty_implicit_views(decoder, mu, var, cameras, image_hw, steps)
+        return depth_uncertainty_implicit_views(decoder, mu, var, cameras, image_hw, steps, bf16=bf16)
     if method == "mc":
         if codes is None:
             raise ValueError("depth method 'mc' traces sampled codes: pass codes [M, D] (see sample_codes)")
-        return [depth_uncertainty(decoder, codes, K, w2c, image_hw, steps) for K, w2c in cameras]
+        return [depth_uncertainty(decoder, codes, K, w2c, image_hw, steps, bf16=bf16) for K, w2c in cameras]
     raise ValueError(f"depth method must be one of {DEPTH_METHODS}, got {method!r}")
 
 

@@ -17,7 +17,7 @@ import torch
 from torch import Tensor
 
 from ushape.data.rendering import pixel_rays
-from ushape.decoder.query import frozen
+from ushape.decoder.query import decoder_autocast, frozen
 
 BatchSDF = Callable[[Tensor, Tensor], Tensor]  # (points [N, 3], code index [N]) -> sdf [N]
 
@@ -70,11 +70,11 @@ def sphere_trace(
     return t, hit
 
 
-def codes_sdf(decoder: torch.nn.Module, codes: Tensor) -> BatchSDF:  # codes [M, D]
-    """(points [N, 3], code index [N]) -> sdf [N] of each point under its code, without gradients."""
+def codes_sdf(decoder: torch.nn.Module, codes: Tensor, bf16: bool = False) -> BatchSDF:  # codes [M, D]
+    """(points [N, 3], code index [N]) -> sdf [N] (float32) of each point under its code, without gradients."""
 
     def sdf(points: Tensor, which: Tensor) -> Tensor:
-        with torch.no_grad():
+        with torch.no_grad(), decoder_autocast(points.device, bf16):
             return decoder(points, codes[which]).float()
 
     return sdf
@@ -117,12 +117,14 @@ def depth_uncertainty(
     image_hw: tuple[int, int],
     steps: int = 50,
     eps: float = 2e-3,
+    bf16: bool = False,
 ) -> DepthStats:
-    """Per-pixel depth mean and std [H, W] over the M codes' sphere-traced surfaces."""
+    """Per-pixel depth mean and std [H, W] over the M codes' sphere-traced surfaces (decoder under bf16 if asked)."""
     if codes.ndim != 2 or codes.shape[0] < 1:
         raise ValueError(f"codes must be M >= 1 latent codes [M, D], got shape {tuple(codes.shape)}")
     origins, directions = camera_rays(K, world_to_cam, image_hw, steps, eps)
     with frozen(decoder):
-        t, hit = sphere_trace(codes_sdf(decoder, codes.float()), origins, directions, codes.shape[0], steps, eps)
+        sdf = codes_sdf(decoder, codes.float(), bf16)
+        t, hit = sphere_trace(sdf, origins, directions, codes.shape[0], steps, eps)
     # pixel_rays' directions have camera-z component 1, so the ray parameter t is the depth itself.
     return depth_statistics(t, hit, image_hw)

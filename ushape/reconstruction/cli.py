@@ -2,7 +2,7 @@
 
     python reconstruct.py IMAGE [IMAGE ... | FOLDER] [--run RUN | --checkpoint CKPT] [--out DIR]
         [--fusion average|bayesian|bayesian_k] [--k 4] [--uncertainty mc|linearised]
-        [--resolution 128] [--depth-method implicit|mc] [--temperature] [--std-max S]
+        [--resolution 128] [--depth-method implicit|mc] [--precision auto|fp32|bf16] [--temperature] [--std-max S]
         [--refine masks|depth [--cameras CAMERAS.npz] [--masks MASK ...]] ...
     python reconstruct.py --fit-temperature [--run RUN | --checkpoint CKPT]
 
@@ -24,6 +24,7 @@ from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
+from ushape.decoder.precision import PRECISIONS
 from ushape.fusion.rules import check_k
 from ushape.mesh.extraction import EmptySurfaceError
 from ushape.propagation.depth_implicit import DEPTH_METHODS
@@ -104,6 +105,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--masks", nargs="+", default=None, help="one mask image per input (default: alpha)")
     parser.add_argument("--refine-size", type=int, default=32, help="rays per image side the refinement compares")
     parser.add_argument("--cmap", default="inferno", help="matplotlib colormap for the std colours")
+    parser.add_argument(
+        "--precision",
+        default="auto",
+        choices=PRECISIONS,
+        help="decoder precision: auto (bf16 on AMX CPUs and CUDA >= 8.0, else fp32), fp32 or bf16",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default=None, help=f"output folder (default {DEFAULT_OUT}/<time>)")
     return parser
@@ -134,6 +141,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             seed=args.seed,
             refine=args.refine,
             refine_size=args.refine_size,
+            precision=args.precision,
         )
         if (args.cameras or args.masks) and not args.refine:
             raise ValueError("--cameras and --masks are read by the refinement: add --refine masks|depth")

@@ -1,0 +1,93 @@
+"""The precision contract, checked by forcing bf16 (auto picks fp32 on a CPU without AMX).
+
+Mesh vs fp32: Chamfer <= 1e-5 (unit-sphere frame), IoU at 64^3 >= 0.995; vertex and depth std within
+2 % (median relative); the evaluation's IoU within 0.002. On an analytic decoder that reads the point
+through a Linear layer (so bf16 autocast rounds it, as it rounds a DeepSDF decoder's input), and on a
+quickstart-sized (4 x 256) decoder fitted to a procedural chair.
+"""
+
+import pytest
+import torch
+from omegaconf import OmegaConf
+from torch import nn
+
+from ushape.bench.contract import LIMITS, Contract, contract, median_relative
+from ushape.bench.depth import orbit_cameras
+from ushape.propagation.field import decode_field, surface_field
+from ushape.workspace import CONFIG_DIR
+
+
+class RoundedEllipsoid(nn.Module):
+    """An ellipsoid whose x semi-axis is 0.45 + 0.1 z_0 + 0.05 z_1, the point read through an identity Linear."""
+
+    latent_size = 2
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.read = nn.Linear(3, 3, bias=False)
+        with torch.no_grad():
+            self.read.weight.copy_(torch.eye(3))
+
+    def forward(self, xyz, z):
+        p = self.read(xyz).float() - torch.tensor([0.05, -0.1, 0.02])
+        a = 0.45 + 0.1 * z[..., 0] + 0.05 * z[..., 1]
+        scale = torch.stack(torch.broadcast_tensors(a, torch.full_like(a, 0.3), torch.full_like(a, 0.6)), -1)
+        return ((p / scale).norm(dim=-1) - 1) * 0.3
+
+
+def test_bf16_moves_the_raw_field_but_not_the_mesh_on_an_analytic_decoder():
+    decoder, code = RoundedEllipsoid(), torch.tensor([0.2, -0.3])
+    raw = decode_field(decoder, code, 48, bf16=True)
+    assert (raw - decode_field(decoder, code, 48)).abs().max() > 1e-4  # bf16 really rounds the points
+    assert torch.equal(surface_field(decoder, code, 48), decode_field(decoder, code, 48))
+    var = torch.tensor([0.01, 0.02])
+    figures = contract(decoder, code, var, resolution=48, bf16=True, cameras=orbit_cameras(2, 16), depth_size=16)
+    assert figures.met(), figures.text()
+    assert figures.chamfer <= LIMITS["chamfer"] and figures.iou >= LIMITS["iou"]
+    assert figures.depth_std is not None and figures.depth_std <= LIMITS["depth_std"]
+    # fp32 against itself: no difference at all
+    same = contract(decoder, code, var, resolution=32, bf16=False)
+    assert (same.chamfer, same.iou, same.vertex_std, same.eval_iou) == (0.0, 1.0, 0.0, 0.0)
+
+
+def test_the_contract_reads_each_limit():
+    good = Contract(chamfer=1e-6, iou=0.999, vertex_std=0.01, depth_std=None, eval_iou=0.001)
+    assert good.met() and "contract met" in good.text()
+    for field, bad in (("chamfer", 2e-5), ("iou", 0.99), ("vertex_std", 0.03), ("depth_std", 0.05), ("eval_iou", 0.01)):
+        figures = Contract(**{**good.__dict__, field: bad})
+        assert not figures.met() and "MISSED" in figures.text(), field
+
+
+def test_median_relative_difference():
+    reference = torch.tensor([1.0, 2.0, 4.0, 0.0, float("nan")])
+    assert median_relative(torch.tensor([1.1, 2.0, 3.0, 5.0, 1.0]), reference) == pytest.approx(0.1)
+
+
+@pytest.fixture(scope="module")
+def quickstart_sized_decoder():
+    """conf/decoder/small.yaml (the quickstart's 4 x 256, latent 64) fitted to procedural chair 0."""
+    from hydra.utils import instantiate
+
+    from ushape.bench.fitted import fit_decoder
+
+    torch.manual_seed(0)
+    decoder = instantiate(OmegaConf.load(CONFIG_DIR / "decoder" / "small.yaml"))
+    code = 0.1 * torch.randn(decoder.latent_size)
+    fit_decoder(decoder, code, steps=200, batch=4096)
+    return decoder, code
+
+
+@pytest.mark.slow
+def test_bf16_meets_the_contract_on_a_quickstart_sized_decoder(quickstart_sized_decoder):
+    decoder, code = quickstart_sized_decoder
+    figures = contract(
+        decoder,
+        code,
+        torch.full_like(code, 0.01),
+        resolution=128,
+        bf16=True,
+        cameras=orbit_cameras(2, 32),
+        depth_size=32,
+        depth_var=torch.full_like(code, 0.001),
+    )
+    assert figures.met(), figures.text()

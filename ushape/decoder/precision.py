@@ -1,0 +1,86 @@
+"""Which precision the decoder's inference runs in: "fp32", "bf16", or "auto" (bf16 where it is faster).
+
+bf16 autocast only pays where the hardware multiplies bf16 matrices natively: Intel CPUs with AMX
+(amx_bf16 and amx_tile; 3-4x faster than fp32 on the 8x512 decoder) and CUDA devices of compute
+capability 8.0 or newer (Ampere on). Elsewhere it is emulated and slower: 1.5-1.8x on an
+avx512_bf16 CPU without AMX, 7-9x on an AVX2 one. "auto" is resolved once, where a command starts
+(reconstruct.py, eval.py, bench.py), and what it resolved to is passed down as the `bf16` flag of
+the decoding functions and recorded in the command's outputs.
+
+AMX is read from `torch.cpu.get_capabilities()` (torch >= 2.8: the cpuinfo flags torch itself
+dispatches on). On an older torch, or a build whose mapping lacks the AMX keys, the flags of
+/proc/cpuinfo are read instead (Linux only; elsewhere no AMX is assumed, so "auto" stays fp32).
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Mapping
+
+import torch
+
+log = logging.getLogger(__name__)
+
+PRECISIONS = ("auto", "fp32", "bf16")
+AMX_FLAGS = ("amx_bf16", "amx_tile")
+CPUINFO = Path("/proc/cpuinfo")
+# Compute capability from which CUDA devices have bf16 tensor cores (A100 is 8.0); older ones emulate it.
+CUDA_BF16_CAPABILITY = (8, 0)
+
+
+def check_precision(precision: str) -> str:
+    """The precision itself, or a ValueError naming the choices."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
+    return precision
+
+
+def cpu_flags(capabilities: Mapping | None = None, cpuinfo: Path = CPUINFO) -> dict[str, bool]:
+    """{flag: present} for AMX_FLAGS: from torch's capabilities where they name them, else /proc/cpuinfo."""
+    if capabilities is None:
+        get = getattr(getattr(torch, "cpu", None), "get_capabilities", None)
+        capabilities = get() if callable(get) else {}
+    if all(flag in capabilities for flag in AMX_FLAGS):
+        return {flag: bool(capabilities[flag]) for flag in AMX_FLAGS}
+    try:
+        text = cpuinfo.read_text()
+    except OSError:
+        return dict.fromkeys(AMX_FLAGS, False)
+    flags = set()
+    for line in text.splitlines():
+        if line.startswith("flags"):
+            flags.update(line.partition(":")[2].split())
+    return {flag: flag in flags for flag in AMX_FLAGS}
+
+
+def bf16_is_faster(device: torch.device | str = "cpu", capabilities: Mapping | None = None) -> tuple[bool, str]:
+    """(whether bf16 runs faster than fp32 on `device`, why), as "auto" decides it."""
+    device = torch.device(device)
+    if device.type == "cpu":
+        flags = cpu_flags(capabilities)
+        if all(flags.values()):
+            return True, "CPU with AMX (amx_bf16, amx_tile)"
+        missing = ", ".join(flag for flag, present in flags.items() if not present)
+        return False, f"CPU without AMX ({missing} absent): bf16 would be emulated, slower than fp32"
+    if device.type == "cuda":
+        capability = tuple(torch.cuda.get_device_capability(device))
+        shown = ".".join(map(str, capability))
+        if capability >= CUDA_BF16_CAPABILITY:
+            return True, f"CUDA device of compute capability {shown} (bf16 tensor cores)"
+        return False, f"CUDA device of compute capability {shown} (< 8.0: no bf16 tensor cores)"
+    return False, f"{device.type} device: bf16 is only chosen for AMX CPUs and CUDA devices"
+
+
+def resolve_precision(
+    precision: str, device: torch.device | str = "cpu", capabilities: Mapping | None = None
+) -> tuple[str, str]:
+    """("fp32" | "bf16", why) for a requested precision on `device`; "auto" asks `bf16_is_faster`. Logged."""
+    check_precision(precision)
+    if precision == "auto":
+        faster, why = bf16_is_faster(device, capabilities)
+        resolved = "bf16" if faster else "fp32"
+    else:
+        resolved, why = precision, "asked for"
+    log.info("precision %s -> %s on %s: %s", precision, resolved, torch.device(device), why)
+    return resolved, why
