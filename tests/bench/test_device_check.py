@@ -46,3 +46,15 @@ def test_a_spent_budget_skips_parts_and_says_so(voxels, tmp_path):
     assert set(record["errors"]) == {"world", "bench"} and "budget" in record["errors"]["world"]
     with pytest.raises(SystemExit, match="03001627"):
         device_check.main(["--voxels-root", str(tmp_path)])
+
+
+def test_loader_report_counts_the_cores_a_gpu_step_rate_needs():
+    from ushape.bench.loaders import STAGE1_STEPS_PER_S, LoaderRate, loader_report
+
+    # 100 shapes/s of 16,384 samples on a core that was busy half the time: 3.3 M samples per CPU-second.
+    one = LoaderRate("stage-1 SDF samples", 100.0, 100.0 * 16384, 5, 0, 0.5)
+    two = LoaderRate("stage-2 views at 224 px", 200.0, 200.0, 2, 0, 1.0)
+    table = loader_report(one, two)
+    need = max(STAGE1_STEPS_PER_S.values()) * 64 * 16384
+    assert f"| {need / 1e6:.1f} M | {need / (2 * 100 * 16384):.1f} |" in table  # 10 steps/s: 3.2 cores
+    assert "| 2880 | 14.4 |" in table  # 45 steps of 64 views at 200 views/s a core
