@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 
 from ushape.bench import device_check
+from ushape.bench.cli import loader_section
 
 _HERE = Path(os.path.dirname(os.path.abspath(__file__)))
 SHARED = next((p / "shared" / "data" for p in _HERE.parents if (p / "shared" / "data").is_dir()), _HERE / "absent")
@@ -36,6 +37,9 @@ def test_device_check_trains_both_stages_and_writes_one_json(voxels, tmp_path):
     assert rates[0]["units_per_s"] == pytest.approx(rates[0]["items_per_s"] * 256)  # tiny: 256 samples a shape
     assert "stage-2 views at 32 px" in record["loaders"]["table"]
     assert record["config"]["decoder"]["hidden_dims"] == [256] * 4  # --tiny: the small decoder
+    # bench.py --loaders-world: the same rates for the paper's batch, as a section of its report.
+    section = loader_section(record["world"]["root"], quick=True)
+    assert section.startswith("| loader (one core) |") and section.count("\n") == 6
 
 
 def test_a_spent_budget_skips_parts_and_says_so(voxels, tmp_path):

@@ -150,9 +150,9 @@ class R2N2World:
             splits = shapenet.read_split_source(self.split_file, self.synset)
         capped = {}
         for split, members in splits.items():
-            cap = self.config["caps"][split]
-            ordered = sorted(dict.fromkeys(members), key=lambda i: (shapenet.id_hash(i), i))
-            capped[split] = ordered if cap is None else ordered[:cap]
+            cap, unique = self.config["caps"][split], list(dict.fromkeys(members))
+            # A cap keeps the first ids by hash; uncapped, a split file's order is kept.
+            capped[split] = unique if cap is None else sorted(unique, key=lambda i: (shapenet.id_hash(i), i))[:cap]
         return capped
 
     def build(self) -> WorldIndex:
@@ -188,6 +188,7 @@ class R2N2World:
             if reason is not None:
                 log.warning("skipping R2N2 model %s: %s", model_id, reason)
                 skipped[model_id] = reason
+                atomic.write_json(root / SKIPPED_FILE, skipped)  # as they come: an interrupted build keeps them
         atomic.write_json(root / SKIPPED_FILE, skipped)
         splits = {s: [m for m in planned[s] if m not in skipped] for s in SPLITS}
         if not splits["train"]:
