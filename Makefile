@@ -6,7 +6,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.ushape-installed
 
-.PHONY: install demo test test-slow lint format bench gallery clean
+.PHONY: install demo test test-slow lint format bench device-check gallery clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -36,6 +36,10 @@ format: install
 
 bench: install
 	$(PY) bench.py $(ARGS)
+
+# On a GPU machine, ~8 minutes: the paper preset on R2N2 chairs timed into one JSON (docs/r2n2.md).
+device-check: install
+	$(PY) -m ushape.bench.device_check $(if $(VOXELS),--voxels-root $(VOXELS)) $(if $(WEIGHTS),--weights-path $(WEIGHTS)) $(ARGS)
 
 gallery: install
 	$(VENV)/bin/ushape gallery $(ARGS)

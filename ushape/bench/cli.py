@@ -4,6 +4,7 @@
     python bench.py --quick               resolution 32, few repeats: a smoke run (seconds)
     python bench.py --skip-slow           no MC field for any decoder
     python bench.py --decoder-dir DIR     time a trained decoder folder in place of the fitted `small`
+    python bench.py --loaders-world DIR   also the loaders' per-core rates against a GPU's needs (a world folder)
 
 Untrained decoders are fitted to a procedural chair first (--fit-steps, cached), so coarse-to-fine,
 the narrow band and the depth rows see one surface as with a trained decoder. The 8 x 512 decoder's
@@ -20,6 +21,7 @@ from typing import Sequence
 
 from ushape import atomic
 from ushape.bench.computation import BenchSettings, run_bench
+from ushape.bench.loaders import loader_report, stage1_rate, stage2_rate
 from ushape.bench.report import markdown_report
 from ushape.decoder.precision import resolve_precision
 from ushape.errors import InputError
@@ -50,8 +52,18 @@ def build_parser() -> argparse.ArgumentParser:
         f"cached under {DEFAULT_OUT_DIR}/fitted",
     )
     parser.add_argument("--depth-views", type=int, default=12, help="views of the depth-uncertainty rows (0: none)")
+    parser.add_argument(
+        "--loaders-world", default=None, help="world folder: add stage 1/2 loader throughput (ushape.bench.loaders)"
+    )
     parser.add_argument("--out", default=None, help=f"report file (default {DEFAULT_OUT_DIR}/bench_<date>.md)")
     return parser
+
+
+def loader_section(world: str, quick: bool) -> str:
+    """The paper batch's loaders timed in this process (per core) on `world`, as a markdown table."""
+    one = stage1_rate(world, batches=3 if quick else 10)
+    two = stage2_rate(world, batches=1 if quick else 4)
+    return loader_report(one, two)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -84,7 +96,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         fit_steps=fit_steps,
         cache_dir=DEFAULT_OUT_DIR / "fitted",
     )
-    report = markdown_report(shared, benches, settings) + f"\nTotal bench time {time.time() - started:.0f} s.\n"
+    report = markdown_report(shared, benches, settings)
+    if args.loaders_world:
+        report += "\n## Loaders: can they feed a GPU?\n\n" + loader_section(args.loaders_world, args.quick)
+    report += f"\nTotal bench time {time.time() - started:.0f} s.\n"
     out = Path(args.out) if args.out else DEFAULT_OUT_DIR / f"bench_{time.strftime('%Y-%m-%d')}.md"
     atomic.write_text(out, report)
     print(report)
