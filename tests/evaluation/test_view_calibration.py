@@ -51,3 +51,26 @@ def test_shared_rule_stays_calibrated_across_views_and_bayesian_does_not():
     assert rows[("bayesian", 10)]["latent_calibration_error"] > 0.2
     fig = plot_calibration_across_views(list(rows.values()))
     assert len(fig.axes) == 1  # latent only: no SDF scored
+
+
+def test_rules_of_a_run_include_shared_only_once_it_is_fitted(tmp_path):
+    import json
+
+    from ushape.evaluation.view_calibration import evaluation_rules, table_view_calibration
+
+    checkpoint = tmp_path / "best.ckpt"
+    rules, latent_t, _ = evaluation_rules(checkpoint, 4)
+    assert set(rules) == {"average", "bayesian", "bayesian-4", "intersection"} and latent_t is None
+    record = {"temperature": 2.0, "sdf_temperature": 1.5, "shared_error": {"var": [0.1, 0.2], "view_scale": 0.5}}
+    (tmp_path / "temperature.json").write_text(
+        json.dumps({**record, "shared_error": {**record["shared_error"], "n_shapes": 3}})
+    )
+    rules, latent_t, sdf_t = evaluation_rules(checkpoint, 4)
+    assert {"shared", "shared-4"} <= set(rules) and (latent_t, sdf_t) == (2.0, 1.5)
+    fused = rules["shared"](torch.zeros(2, 2), torch.ones(2, 2))
+    assert torch.allclose(fused.var, torch.tensor([0.1 + 0.25, 0.2 + 0.25]))
+    row = {"label": "Ours", "fusion": "shared", "n_views": 3, "n_shapes": 2}
+    row.update(
+        {f"{s}_{m}": 0.5 for s in ("latent", "sdf") for m in ("calibration_error", "error_over_var", "coverage90")}
+    )
+    assert table_view_calibration([row]).rows[0][:4] == ["Ours", "shared", 3, 2]

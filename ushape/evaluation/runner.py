@@ -37,6 +37,7 @@ from ushape.evaluation.uncertainty_protocol import (
     sdf_rows,
     with_shape_accuracy,
 )
+from ushape.evaluation.view_calibration import view_calibration_protocol
 from ushape.evaluation.views import encode_views
 from ushape.propagation import SDF_CLAMP
 from ushape.reconstruction.depth_implicit import DEPTH_METHODS
@@ -44,10 +45,21 @@ from ushape.reconstruction.depth_implicit import DEPTH_METHODS
 log = logging.getLogger(__name__)
 
 PAPER_PROTOCOLS = ("single_view", "multi_view", "corrupted", "uncertainty", "locality", "depth")
-PROTOCOLS = (*PAPER_PROTOCOLS, "active")  # active: next-best-view (evaluation/active.py), asked for by name
+# active: next-best-view (evaluation/active.py); view_calibration: Table V (evaluation/view_calibration.py). By name.
+PROTOCOLS = (*PAPER_PROTOCOLS, "active", "view_calibration")
 RESULT_ROW = "eval_row.json"
 # The row lists every encoder contributes to an evaluation's result (concatenated over encoders).
-ROW_KEYS = ("records", "uncertainty", "error_tracking", "locality", "locality_views", "depth", "active", "rows")
+ROW_KEYS = (
+    "records",
+    "uncertainty",
+    "error_tracking",
+    "locality",
+    "locality_views",
+    "depth",
+    "active",
+    "view_calibration",
+    "rows",
+)
 RESULTS = "results.json"
 
 
@@ -176,6 +188,9 @@ def evaluate_encoder(
     if "active" in protocols:
         records, out["active"] = active_records(run, settings, split_codes(run, settings, cache_dir))
         out["records"] += records
+    if "view_calibration" in protocols:
+        codes = split_codes(run, settings, cache_dir)
+        out["view_calibration"] = view_calibration_protocol(run, settings, encode(1.0), codes)
     if "depth" in protocols:
         out["depth"], curves = depth_protocol(run, settings, encode)
         out["curves"]["depth"] = curves_to_json(curves)

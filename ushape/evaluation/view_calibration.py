@@ -145,3 +145,81 @@ def plot_calibration_across_views(rows: Sequence[dict], target: float = 0.05):
         ax.legend(fontsize="small")
     fig.tight_layout()
     return fig
+
+
+def evaluation_rules(checkpoint, k: int) -> tuple[dict[str, FusionRule], float | None, float | None]:
+    """(every fusion rule by name, latent T, SDF T) for a run: the paper's three, intersection, and `shared`
+    (with `shared`-K) where --fit-temperature stored the shared error; without it, a warning says how."""
+    import logging
+
+    from ushape.fusion import (
+        AverageFusion,
+        BayesianFusion,
+        BayesianKFusion,
+        CovarianceIntersectionFusion,
+        SharedErrorFusion,
+    )
+    from ushape.reconstruction.predictor import read_shared_error, read_temperatures, temperature_path
+
+    rules = {"average": AverageFusion(), "bayesian": BayesianFusion(), f"bayesian-{k}": BayesianKFusion(k)}
+    rules["intersection"] = CovarianceIntersectionFusion()
+    fit = read_shared_error(checkpoint)
+    if fit is None:
+        logging.getLogger(__name__).warning(
+            "calibration across views without the shared rule: %s has no shared error; fit it with "
+            "`python reconstruct.py --fit-temperature --checkpoint %s`",
+            temperature_path(checkpoint),
+            checkpoint,
+        )
+        return rules, None, None
+    rules["shared"] = SharedErrorFusion(fit.shared_var, fit.view_scale)
+    rules[f"shared-{k}"] = SharedErrorFusion(fit.shared_var, fit.view_scale, k=k)
+    return rules, *read_temperatures(checkpoint)
+
+
+def view_calibration_protocol(run, settings, encodings, codes, draws: int = 6) -> list[dict]:
+    """Table V's rows for one evaluated run: every rule at 1, 3 and 10 fused test views, latent and SDF.
+
+    All rules fuse the temperature-scaled view variances (the shared error was fitted on them): the
+    stored T is applied here where the evaluation did not apply it already.
+    """
+    from ushape.data.sdf_dataset import sdf_points
+
+    if not run.spec.probabilistic:
+        return []
+    rules, latent_t, sdf_t = evaluation_rules(run.predictor.checkpoint, settings.table4_k)
+    scale = latent_t if latent_t is not None and run.predictor.temperature is None else 1.0
+    sdf_t = run.predictor.sdf_temperature if run.predictor.sdf_temperature is not None else sdf_t
+    ids = list(dict.fromkeys(key.shape_id for key in encodings.keys))
+    views, sdf = [], []
+    for shape_id in ids:
+        rows = [i for i, key in enumerate(encodings.keys) if key.shape_id == shape_id]
+        views.append((encodings.mu[rows], encodings.var[rows] * scale, codes.lookup(shape_id)))
+        sdf.append(sdf_points(run.world, shape_id, settings.sdf_points))
+    rows = calibration_across_views(
+        rules, views, draws=draws, seed=settings.seed, sdf=sdf, decoder=run.predictor.decoder, sdf_temperature=sdf_t
+    )
+    return [{"encoder": run.spec.name, "label": run.spec.label, **row} for row in rows]
+
+
+def table_view_calibration(rows: Sequence[dict]):
+    """Table V: calibration across views, per encoder, fusion rule and number of fused views."""
+    from ushape.evaluation.tables import Table
+
+    table = Table(
+        "Table V: calibration across fused views",
+        "Each test shape's views fused n at a time (n = 1: every view; else random subsets of n distinct views) "
+        "by each rule, on temperature-scaled view variances, against the shape's own code (latent, per "
+        "dimension) and its ground-truth SDF samples (linearised propagation, SDF temperature applied). CE: "
+        "calibration error; err/var: mean squared error over mean variance (1 when calibrated); cov90: "
+        "coverage of the 90 % interval. Bayesian treats the views' errors as independent; shared adds back "
+        "the error they share (fitted on val).",
+        ["Method", "Fusion", "views", "shapes", "latent CE", "latent err/var", "latent cov90", "SDF CE", "SDF err/var"]
+        + ["SDF cov90"],
+    )
+    for r in rows:
+        table.rows.append(
+            [r["label"], r["fusion"], r["n_views"], r["n_shapes"]]
+            + [r[f"{s}_{m}"] for s in ("latent", "sdf") for m in ("calibration_error", "error_over_var", "coverage90")]
+        )
+    return table
