@@ -19,7 +19,7 @@ TOY = Path(__file__).resolve().parent / "toy_protocols"
 
 def test_every_protocol_is_a_yaml_file_that_builds_its_class():
     names = sorted(available())
-    assert names == sorted([*PAPER_PROTOCOLS, "active"])
+    assert names == sorted([*PAPER_PROTOCOLS, "active", "view_calibration"])
     assert [p.name for p in load_protocols(names, Settings())] == names
     with pytest.raises(ValueError, match=r"unknown protocols \['toy'\].*protocol_dirs"):
         load_protocols(["toy"], Settings())

@@ -5,7 +5,7 @@ import warnings
 
 import pytest
 import torch
-from eval_world import RADII, FakePredictor, make_run, tiny_settings
+from eval_world import LATENT, RADII, FakePredictor, make_run, tiny_settings
 
 from ushape.data.augment import CompositeBackground, corrupted_view, load_rgba, resize, view_seed
 from ushape.evaluation import protocols as P
@@ -153,3 +153,23 @@ def test_evaluate_all_runs_the_uncertainty_analysis_with_the_equal_variance_base
     # Unit latent variance through a decoder whose radius moves 0.1 tanh(z): far too wide for these errors.
     assert sdf[("es", "predicted", "mc")]["nll_all"] < sdf[("es", "equal", "mc")]["nll_all"]
     assert set(result["curves"]["latent"]) == {"Ours (predicted var)", "Ours (equal var)", "FroDO* (equal var)"}
+
+
+def test_view_calibration_protocol_scores_every_rule_and_writes_table_v(sphere_world, sphere_codes, tmp_path):
+    import json
+
+    from ushape.evaluation.report import build_figures, build_tables
+
+    settings = tiny_settings(protocols=("view_calibration",))
+    run = make_run(sphere_world, sphere_codes, None, "es", tmp_path, settings)
+    record = {"temperature": 1.0, "shared_error": {"var": [0.1] * LATENT, "view_scale": 1.0}}
+    record["shared_error"]["n_shapes"] = 2
+    (run.predictor.checkpoint.parent / "temperature.json").write_text(json.dumps(record))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = evaluate_all([run], settings)
+    rows = result["view_calibration"]
+    assert {r["fusion"] for r in rows} >= {"bayesian", "shared", "intersection"}
+    assert all(0 <= r["latent_calibration_error"] <= 0.5 and 0 <= r["sdf_coverage90"] <= 1 for r in rows)
+    assert any(t.name.startswith("Table V") for t in build_tables(result))
+    assert "calibration_across_views" in build_figures(result)

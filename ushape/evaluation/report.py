@@ -22,6 +22,7 @@ from ushape import atomic
 from ushape.evaluation import active, plots, tables
 from ushape.evaluation.active_diagnostics import table_active_why
 from ushape.evaluation.settings import RESULT_ROW, RESULTS
+from ushape.evaluation.view_calibration import plot_calibration_across_views
 
 PLOTS_DIR = "plots"
 
@@ -78,6 +79,8 @@ def build_figures(result: dict[str, Any]) -> dict[str, Any]:
         figures["iou_vs_k"] = plots.iou_vs_k(summary, settings["group_size"])
     if len({r["min_scale"] for r in summary if r["protocol"] == "multi"}) > 1:
         figures["iou_vs_min_scale"] = plots.iou_vs_min_scale(summary, settings["table4_k"])
+    if result.get("view_calibration"):
+        figures["calibration_across_views"] = plot_calibration_across_views(result["view_calibration"])
     if any(r["protocol"] == active.PROTOCOL for r in result["records"]):
         figures["active_iou_vs_views"] = active.plot_active(result["records"])
     return figures
@@ -88,7 +91,7 @@ def write_results(result: dict[str, Any], out_dir: str | Path, tensorboard: bool
     out_dir = Path(out_dir)
     atomic.write_json(out_dir / RESULTS, _finite(result))
     atomic.write_json(out_dir / RESULT_ROW, _finite(result.get("rows", [])))
-    for name in ("records", "summary", "uncertainty", "locality_views", "depth"):
+    for name in ("records", "summary", "uncertainty", "locality_views", "depth", "view_calibration"):
         if result.get(name):
             atomic.write_text(out_dir / f"{name}.csv", rows_to_csv(result[name]))
     built = build_tables(result)

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+from typing import Sequence
+
+import torch
 from torch import Tensor
 
 from ushape.fusion.incremental import IncrementalFuser
 from ushape.fusion.rules import FusedCode, check_k, fuse_average, fuse_bayesian, fuse_bayesian_k
+from ushape.fusion.shared import add_shared, check_shared, fuse_intersection, fuse_shared, fuse_shared_k
 
 
 class AverageFusion:
@@ -56,3 +60,95 @@ class BayesianKFusion:
 
     def incremental(self) -> IncrementalFuser:
         return IncrementalFuser("bayesian_k", k=self.k, var_floor=self.var_floor)
+
+
+class SharedIncremental:
+    """Streaming `SharedErrorFusion`: Bayesian's (or Bayesian-K's) running product, with S + c var read out."""
+
+    def __init__(self, inner: IncrementalFuser, shared_var: Tensor, view_scale: float) -> None:
+        self.inner, self.shared_var, self.view_scale = inner, shared_var, view_scale
+
+    @property
+    def n_views(self) -> int:
+        return self.inner.n_views
+
+    def add(self, mu: Tensor, var: Tensor) -> None:
+        """Fold in one view's Gaussian over the latent code: mu [D], var [D]."""
+        self.inner.add(mu, var)
+
+    def result(self) -> FusedCode:
+        return add_shared(self.inner.result(), self.shared_var, self.view_scale)
+
+
+class SharedErrorFusion:
+    """Bayesian fusion that keeps the error all views of a shape share: var = S + c (sum_v var_v^-1)^-1.
+
+    S [D] and c are fitted on val beside the temperature (`python reconstruct.py --fit-temperature`)
+    and apply to temperature-scaled view variances; `calibrated(S, c)` gives the rule with them.
+    With k, only the K lowest-trace views are fused, chosen exactly as Bayesian-K chooses them.
+    """
+
+    def __init__(
+        self,
+        shared_var: Sequence[float] | Tensor | None = None,
+        view_scale: float = 1.0,
+        k: int | None = None,
+        var_floor: float = 1e-8,
+        source: str | None = None,
+    ) -> None:
+        if var_floor <= 0:
+            raise ValueError(f"var_floor must be > 0, got {var_floor}")
+        self.k = None if k is None else check_k(k)
+        # What a summary says about the fit: where S and c came from (None until fitted).
+        self.calibration = None if shared_var is None else f"shared error S and view scale c fitted on val: {source}"
+        self.shared_var = None if shared_var is None else torch.as_tensor(shared_var, dtype=torch.float32)
+        self.view_scale = float(view_scale)
+        if self.shared_var is not None:
+            check_shared(self.shared_var, self.view_scale, self.shared_var.shape[-1])
+        self.var_floor = var_floor
+        self.name = "shared" if self.k is None else f"shared-{self.k}"
+
+    def calibrated(
+        self, shared_var: Sequence[float] | Tensor, view_scale: float, source: str | None = None
+    ) -> SharedErrorFusion:
+        """This rule with a fitted shared error S [D] and per-view scale c (`source`: where they were read)."""
+        return SharedErrorFusion(shared_var, view_scale, self.k, self.var_floor, source)
+
+    def _fit(self) -> Tensor:
+        if self.shared_var is None:
+            raise ValueError(
+                "fusion 'shared' needs the shared error S fitted on val: run `python reconstruct.py --fit-temperature` "
+                "for this run (it stores S beside the temperature), or pick another fusion rule"
+            )
+        return self.shared_var
+
+    def __call__(self, mu: Tensor, var: Tensor) -> FusedCode:
+        """mu, var [..., V, D] -> fused code [..., D]."""
+        shared = self._fit()
+        if self.k is None:
+            return fuse_shared(mu, var, shared, self.view_scale, self.var_floor)
+        return fuse_shared_k(mu, var, shared, self.k, self.view_scale, self.var_floor)
+
+    def incremental(self) -> SharedIncremental:
+        shared = self._fit()
+        inner = (
+            IncrementalFuser("bayesian", var_floor=self.var_floor)
+            if self.k is None
+            else IncrementalFuser("bayesian_k", k=self.k, var_floor=self.var_floor)
+        )
+        return SharedIncremental(inner, shared, self.view_scale)
+
+
+class CovarianceIntersectionFusion:
+    """Covariance intersection with equal weights: Bayesian's mean, the views' harmonic-mean variance."""
+
+    name = "intersection"
+
+    def __init__(self, var_floor: float = 1e-8) -> None:
+        if var_floor <= 0:
+            raise ValueError(f"var_floor must be > 0, got {var_floor}")
+        self.var_floor = var_floor
+
+    def __call__(self, mu: Tensor, var: Tensor) -> FusedCode:
+        """mu, var [..., V, D] -> fused code [..., D]."""
+        return fuse_intersection(mu, var, self.var_floor)

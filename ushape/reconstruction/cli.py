@@ -1,13 +1,14 @@
 """Command line of reconstruct.py: argument parsing and what each mode runs (logic lives in the modules).
 
     python reconstruct.py IMAGE [IMAGE ... | FOLDER] [--run RUN | --checkpoint CKPT] [--out DIR]
-        [--fusion average|bayesian|bayesian_k] [--k 4] [--uncertainty mc|linearised]
+        [--fusion average|bayesian|bayesian_k|shared|intersection] [--k 4] [--uncertainty mc|linearised]
         [--resolution 128] [--depth-method implicit|mc] [--precision auto|fp32|bf16] [--temperature] [--std-max S]
         [--refine masks|depth [--cameras CAMERAS.npz] [--masks MASK ...]] ...
     python reconstruct.py --fit-temperature [--run RUN | --checkpoint CKPT]
 
 Without --run/--checkpoint the newest encoder run under ./outputs/runs is used. The fusion rule is
-built from the `fusion` config group (conf/fusion/<name>.yaml), with --k overriding bayesian_k's k.
+built from the `fusion` config group (conf/fusion/<name>.yaml), with --k overriding its k. Without
+--fusion: `shared` calibrated on the run's val split where --fit-temperature stored its fit, else bayesian.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from ushape.fusion.rules import check_k
 from ushape.mesh.extraction import EmptySurfaceError
 from ushape.propagation.depth_implicit import DEPTH_METHODS
 from ushape.propagation.mesh import METHODS
+from ushape.reconstruction.calibrated_fusion import calibrate_fusion, default_fusion
 from ushape.reconstruction.pipeline import ReconstructionSettings, reconstruct
 from ushape.reconstruction.predictor import collect_inputs, load_predictor
 from ushape.reconstruction.temperature_store import fit_and_store_temperature
@@ -71,8 +73,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="fit T (var' = T var) on the run's val split and store temperature.json, then exit",
     )
     parser.add_argument("--temperature", action="store_true", help="apply the stored temperature")
-    parser.add_argument("--fusion", default="bayesian", help="average | bayesian | bayesian_k (conf/fusion)")
-    parser.add_argument("--k", type=int, default=None, help="views kept by bayesian_k (default: conf, 4)")
+    parser.add_argument(
+        "--fusion",
+        default=None,
+        help="average | bayesian | bayesian_k | shared | intersection (conf/fusion); default: shared where "
+        "--fit-temperature fitted it, else bayesian",
+    )
+    parser.add_argument("--k", type=int, default=None, help="views kept by bayesian_k / shared (default: conf)")
     parser.add_argument("--uncertainty", default="linearised", choices=METHODS, help="vertex std propagation")
     parser.add_argument("--samples", type=int, default=10, help="codes for --uncertainty mc")
     parser.add_argument("--resolution", type=int, default=128, help="marching-cubes grid points per axis")
@@ -127,8 +134,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(json.dumps(record, indent=2))
             return 0
         files = collect_inputs(args.inputs)
-        fusion = build_fusion(args.fusion, args.k)
+        fusion = build_fusion(args.fusion, args.k) if args.fusion else None
         predictor = load_predictor(source, temperature=args.temperature, root=args.root)
+        fusion = default_fusion(predictor, args.k) if fusion is None else calibrate_fusion(fusion, predictor)
         settings = ReconstructionSettings(
             resolution=args.resolution,
             uncertainty=args.uncertainty,
@@ -159,8 +167,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     kept = summary["fused"]["kept"]
+    calibration = summary["fusion_calibration"]
     print(
-        f"{len(summary['views'])} view(s), fused {kept} with {summary['fusion']}; "
+        f"{len(summary['views'])} view(s), fused {kept} with {summary['fusion']}"
+        f" ({calibration or 'views treated as independent'}); "
         f"mesh {summary['mesh']['vertices']} vertices -> {out}"
     )
     if summary["refinement"] is not None:

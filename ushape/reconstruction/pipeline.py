@@ -332,6 +332,7 @@ def write_summary(
         "temperature": predictor.temperature,
         "sdf_temperature": predictor.sdf_temperature,
         "fusion": getattr(fusion, "name", type(fusion).__name__),
+        "fusion_calibration": getattr(fusion, "calibration", None),
         "uncertainty": settings.uncertainty,
         "depth_method": settings.depth_method,
         "precision": precision,

@@ -28,6 +28,7 @@ from torch import Tensor, nn
 from ushape.checkpoints import load_checkpoint
 from ushape.data.augment import IMAGE_SUFFIXES, CompositeBackground, load_rgba, resize
 from ushape.errors import InputError, MissingInputError
+from ushape.recalibration.shared_error import SharedError
 from ushape.recalibration.temperature import apply_temperature
 from ushape.workspace import (
     BEST_FILE,
@@ -119,6 +120,16 @@ def read_temperatures(checkpoint: str | Path) -> tuple[float, float | None]:
     record = json.loads(path.read_text())
     sdf = record.get("sdf_temperature")
     return float(record["temperature"]), None if sdf is None else float(sdf)
+
+
+def read_shared_error(checkpoint: str | Path) -> SharedError | None:
+    """The shared error S and view scale c stored beside a checkpoint by `fit_and_store_temperature`, or None
+    where no temperature was fitted, or it was fitted before S was (refit to get one)."""
+    path = temperature_path(checkpoint)
+    if not path.is_file():
+        return None
+    record = json.loads(path.read_text()).get("shared_error")
+    return None if record is None else SharedError.from_record(record)
 
 
 def run_config(run_dir: Path | None) -> dict:

@@ -5,9 +5,12 @@ run's decoder (latent-optimised with the decoder frozen); the images are the wor
 as evaluation prepares them. SDF: the variance propagated (linearised) from the T-scaled latent
 Gaussians to each val shape's ground-truth SDF samples is still too small (measured 1.04-1.24x in std,
 docs/stage2_encoder.md), so a second factor, T_sdf on that variance, is fitted to its calibration error
-there, on the first views of each shape as `eval.py` scores them.
-`temperature.json` = {"temperature", "n_images", "nll_before", "nll_after", "sdf_temperature",
-"sdf_calibration_before", "sdf_calibration_after", "sdf_views", "checkpoint", "world"}.
+there, on the first views of each shape as `eval.py` scores them. Shared error: the error every view of a
+val shape shares, S [D], and the views' own scale c, on the T-scaled variances
+(`ushape.recalibration.shared_error`), for the `shared` fusion rule.
+`temperature.json` = {"temperature", "n_images", "nll_before", "nll_after", "shared_error": {"var",
+"view_scale", "n_shapes"}, "sdf_temperature", "sdf_calibration_before", "sdf_calibration_after",
+"sdf_views", "checkpoint", "world"}.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from ushape.data.sdf_dataset import sdf_points
 from ushape.decoder.artifacts import codes_file, load_codes
 from ushape.encoder.datamodule import RenderDataset
 from ushape.propagation import SDF_CLAMP, propagate_to_sdf
+from ushape.recalibration.shared_error import fit_shared_error
 from ushape.recalibration.temperature import (
     apply_temperature,
     fit_calibration_temperature,
@@ -34,11 +38,12 @@ from ushape.reconstruction.predictor import Predictor, temperature_path
 
 
 def val_predictions(
-    predictor: Predictor, world: str | Path, batch_size: int = 32
+    predictor: Predictor, world: str | Path, batch_size: int = 32, split: str = "val"
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, list[str]]:
-    """(mu [N, D], var [N, D], code [N, D], shape id per render) of every val render, without any temperature."""
-    codes = load_codes(Path(predictor.model.hparams.decoder_path) / codes_file("val"))
-    dataset = RenderDataset(world, "val", codes, predictor.image_size)
+    """(mu [N, D], var [N, D], code [N, D], shape id per render) of every render of a split (val), without
+    any temperature."""
+    codes = load_codes(Path(predictor.model.hparams.decoder_path) / codes_file(split))
+    dataset = RenderDataset(world, split, codes, predictor.image_size)
     saved, predictor.temperature = predictor.temperature, None
     mus, variances, targets, shape_ids = [], [], [], []
     try:
@@ -88,6 +93,8 @@ def fit_and_store_temperature(predictor: Predictor, world: str | Path | None = N
         "nll_before": gaussian_nll_with_temperature(mu, var, code, 1.0),
         "nll_after": gaussian_nll_with_temperature(mu, var, code, temperature),
     }
+    if len(set(shape_ids)) < len(shape_ids):  # several views of a shape: what they share can be told apart
+        record["shared_error"] = fit_shared_error(mu, apply_temperature(var, temperature), code, shape_ids).to_record()
     index = WorldIndex(Path(world), category="", splits={})  # only its per-shape paths are read
     if all(index.sdf_path(s).is_file() for s in set(shape_ids)):  # a real-data world may have no SDF samples
         error, std, views = sdf_errors(predictor, index, mu, apply_temperature(var, temperature), shape_ids)

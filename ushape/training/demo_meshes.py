@@ -2,7 +2,9 @@
 
 For each of the first `shapes` validation shapes, `reconstruct` (the same pipeline as reconstruct.py)
 runs once on its first view and once on all its views fused (the `fusion` group's rule, Bayesian by
-default), both coloured on the single view's scale so the two can be compared by eye:
+default; where `reconstruct.py --fit-temperature` has fitted the run's shared error, Bayesian(-K) becomes
+the calibrated `shared`(-K) rule: the same views and mean, a variance that keeps what the views share),
+both coloured on the single view's scale so the two can be compared by eye:
 
     <run>/meshes/<shape id>_1view/     mesh.ply, mesh.glb, overview.png, depth_00.png, summary.json
     <run>/meshes/<shape id>_<N>views/
@@ -33,9 +35,10 @@ from ushape.data.layout import WorldIndex
 from ushape.decoder.artifacts import CodeTable
 from ushape.decoder.query import code_sdf_fn, frozen
 from ushape.encoder.datamodule import view_files
-from ushape.fusion import BayesianFusion, FusedCode
+from ushape.fusion import FusedCode
 from ushape.mesh.extraction import EmptySurfaceError, extract_mesh
 from ushape.metrics.pix3d import ShapeReference, pix3d_metrics, reference_from_mesh
+from ushape.reconstruction.calibrated_fusion import calibrated_counterpart
 from ushape.reconstruction.pipeline import ReconstructionSettings, reconstruct
 from ushape.reconstruction.predictor import load_predictor
 
@@ -66,6 +69,7 @@ def write_demo_meshes(
     if shapes <= 0 or not ids:
         return None
     predictor = load_predictor(checkpoint)
+    fusion = calibrated_counterpart(fusion, predictor)
     out_dir = Path(out_dir)
     for shape_id in ids:
         views = view_files(world.root, shape_id)
@@ -76,7 +80,7 @@ def write_demo_meshes(
             folder = folder.with_name(f"{folder.name}_refined_{mode}") if mode else folder
             try:
                 mode_settings = dataclasses.replace(settings, refine=mode)
-                summary = reconstruct(predictor, inputs, fusion or BayesianFusion(), folder, mode_settings)
+                summary = reconstruct(predictor, inputs, fusion, folder, mode_settings)
             except EmptySurfaceError as err:
                 log.warning("no mesh for %s from %d view(s): %s", shape_id, len(inputs), err)
                 folder.mkdir(parents=True, exist_ok=True)
@@ -152,6 +156,8 @@ def demo_digest(meshes_dir: str | Path) -> list[dict]:
                 "trace": summary["fused"]["trace_var"],
                 "std_mean": summary["mesh"]["std_mean"],
                 "overview": summary["files"]["overview"],
+                "fusion": summary.get("fusion"),
+                "fusion_calibration": summary.get("fusion_calibration"),
             }
         )
         if folder.name in by_folder:

@@ -41,7 +41,8 @@ def print_summary(summary: Mapping[str, Any], out_dir: Path) -> None:
             lines.append(f"Demo:         {row['name']}: no surface (see its empty_surface.txt)")
         else:
             lines.append(
-                f"Demo:         {row['name']}: {row['views']} view(s), latent trace {row['trace']:.3f}, "
+                f"Demo:         {row['name']}: {row['views']} view(s){_demo_fusion(row)}, "
+                f"latent trace {row['trace']:.3f}, "
                 f"mean vertex std {row['std_mean']:.4f}{_demo_scores(row)} -> {row['overview']}"
             )
     if "tensorboard" in summary:
@@ -51,6 +52,14 @@ def print_summary(summary: Mapping[str, Any], out_dir: Path) -> None:
             f"Next:         python eval.py runs=[{out_dir}]   |   python reconstruct.py your_photo.png --run {out_dir}"
         )
     Console(soft_wrap=True).print("\n".join(lines), highlight=False, markup=False)
+
+
+def _demo_fusion(row: Mapping[str, Any]) -> str:
+    """How a multi-view demo was fused (" fused with shared (calibrated on val)"); "" for one view or old runs."""
+    if row.get("views", 1) < 2 or not row.get("fusion"):
+        return ""
+    how = "calibrated on val" if row.get("fusion_calibration") else "views treated as independent"
+    return f" fused with {row['fusion']} ({how})"
 
 
 def _demo_scores(row: Mapping[str, Any]) -> str:

@@ -1,0 +1,54 @@
+import pytest
+import torch
+
+from ushape.fusion import fuse_shared
+from ushape.recalibration.shared_error import SharedError, fit_shared_error, shared_variance
+
+
+def _draw(n_shapes=3000, n_views=6, seed=0, scale=1.0):
+    """Views of shapes with a known shared error S and known per-view noise var: e_v = e_shape + e_view."""
+    g = torch.Generator().manual_seed(seed)
+    shared = torch.tensor([0.5, 0.1, 0.0, 1.0])
+    code = torch.randn(n_shapes, 1, 4, generator=g)
+    var = 0.05 + torch.rand(n_shapes, n_views, 4, generator=g)
+    e_shape = torch.randn(n_shapes, 1, 4, generator=g) * shared.sqrt()
+    e_view = torch.randn(n_shapes, n_views, 4, generator=g) * (scale * var).sqrt()
+    mu = code + e_shape + e_view
+    return shared, code.expand_as(mu), mu, var
+
+
+def test_views_with_a_known_shared_error_give_it_back():
+    shared, code, mu, var = _draw(scale=0.5)
+    groups = torch.arange(mu.shape[0]).repeat_interleave(mu.shape[1])
+    fit = fit_shared_error(mu.reshape(-1, 4), var.reshape(-1, 4), code.reshape(-1, 4), groups)
+    assert fit.n_shapes == mu.shape[0]
+    assert torch.allclose(fit.shared_var, shared, atol=0.04)
+    assert fit.view_scale == pytest.approx(0.5, rel=0.05)
+
+
+def test_fused_variance_is_the_analytic_one_and_matches_the_fused_error():
+    shared, code, mu, var = _draw(seed=1)
+    fused = fuse_shared(mu, var, shared)
+    analytic = shared + 1 / (1 / var).sum(dim=1)
+    assert torch.allclose(fused.var, analytic)
+    # the rule's variance is the fused mean's actual squared error (S never averages away)
+    error = (fused.mu - code[:, 0]).square().mean(dim=0)
+    assert torch.allclose(error, fused.var.mean(dim=0), rtol=0.1, atol=0.01)
+
+
+def test_shared_variance_uses_only_cross_view_products():
+    # one shape, two views: errors (1, -1) and (1, 3) -> cross product 1 and -3 (floored to 0)
+    error = torch.tensor([[1.0, -1.0], [1.0, 3.0]])
+    s, n = shared_variance(error, ["a", "a"])
+    assert n == 1 and torch.allclose(s.float(), torch.tensor([1.0, 0.0]))
+
+
+def test_single_views_cannot_tell_the_shared_error_apart():
+    with pytest.raises(ValueError, match="two or more views"):
+        shared_variance(torch.ones(3, 2), ["a", "b", "c"])
+
+
+def test_record_round_trip():
+    fit = SharedError(torch.tensor([0.25, 0.5]), 0.75, 10)
+    back = SharedError.from_record(fit.to_record())
+    assert torch.equal(back.shared_var, fit.shared_var) and back.view_scale == 0.75 and back.n_shapes == 10

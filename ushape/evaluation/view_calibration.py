@@ -1,0 +1,225 @@
+"""Calibration across views: is a fused code's variance honest at 1, 3 and 10 fused views, per fusion rule?
+
+For each held-out shape with V views, `draws` subsets of n distinct views (n = 1: every view) are fused
+with each rule and scored against the shape's own code, per latent dimension (and, propagated through
+the decoder, per ground-truth SDF sample): the calibration error (area between the calibration curve
+and Y = X, supplement S2.2), the mean squared error over the mean variance ("error / trace": 1 when
+calibrated), and the coverage of the 90 % interval. Bayesian fusion treats the views as independent;
+their errors are mostly shared, so its variance shrinks with n far faster than its error.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Mapping, Sequence
+
+import torch
+from torch import Tensor
+
+from ushape.fusion.rules import FusedCode
+from ushape.metrics.calibration import calibration_curve, calibration_error, two_sided_quantile
+from ushape.propagation import SDF_CLAMP, propagate_to_sdf
+
+FusionRule = Callable[[Tensor, Tensor], FusedCode]  # (mu [V, D], var [V, D]) -> fused Gaussian
+VIEW_COUNTS = (1, 3, 10)
+COVERAGE = 0.9
+
+
+def view_subsets(n_views: int, n_fused: int, draws: int, generator: torch.Generator) -> Tensor:
+    """[R, n] view indices to fuse: every single view for n = 1, all views for n = V, else `draws` random
+    subsets of n distinct views (each row ascending)."""
+    if not 1 <= n_fused <= n_views:
+        raise ValueError(f"cannot fuse {n_fused} of {n_views} views: pick 1 <= n <= {n_views}")
+    if n_fused == 1:
+        return torch.arange(n_views).unsqueeze(-1)
+    if n_fused == n_views:
+        return torch.arange(n_views).unsqueeze(0)
+    rows = [torch.randperm(n_views, generator=generator)[:n_fused].sort().values for _ in range(draws)]
+    return torch.stack(rows)
+
+
+def interval_scores(abs_error: Tensor, std: Tensor, n_levels: int = 20) -> dict[str, float]:
+    """Calibration error, mean squared error / mean variance, and 90 % coverage of |error| [N] against std [N]."""
+    abs_error, std = abs_error.reshape(-1).double(), std.reshape(-1).double()
+    p, freq = calibration_curve(abs_error, std, n_levels)
+    inside = abs_error <= float(two_sided_quantile(torch.tensor(COVERAGE, dtype=torch.float64))) * std
+    return {
+        "calibration_error": calibration_error(p, freq),
+        "error_over_var": float(abs_error.square().mean() / std.square().mean().clamp(min=1e-30)),
+        "coverage90": float(inside.double().mean()),
+    }
+
+
+def fused_errors(
+    rule: FusionRule,
+    mu: Tensor,  # [V, D]
+    var: Tensor,  # [V, D]
+    code: Tensor,  # [D]
+    subsets: Tensor,  # [R, n]
+) -> tuple[Tensor, Tensor, Tensor]:
+    """(fused mu [R, D], fused var [R, D], |fused mu - code| [R, D]) of one shape's view subsets, fused as
+    one batch [R, n, D] (every rule of ushape.fusion takes a batch)."""
+    fused = rule(mu[subsets], var[subsets])
+    return fused.mu, fused.var, (fused.mu - code).abs()
+
+
+def sdf_errors(
+    decoder,
+    fused_mu: Tensor,  # [R, D]
+    fused_var: Tensor,  # [R, D]
+    points: Tensor,  # [P, 3]
+    sdf_true: Tensor,  # [P]
+    sdf_temperature: float | None = None,
+) -> tuple[Tensor, Tensor]:
+    """(|error| [R, P], std [R, P]) of the linearised SDF of each fused code at a shape's ground-truth samples,
+    clamped as evaluation clamps them; the SDF-space temperature scales the variance where given."""
+    errors, stds = [], []
+    truth = sdf_true.clamp(-SDF_CLAMP, SDF_CLAMP)
+    for mu, var in zip(fused_mu, fused_var):
+        mean, variance = propagate_to_sdf(decoder, mu, var, points, "linearised", clamp=SDF_CLAMP)
+        if sdf_temperature is not None:
+            variance = variance * sdf_temperature
+        errors.append((mean - truth).abs())
+        stds.append(variance.sqrt())
+    return torch.stack(errors), torch.stack(stds)
+
+
+def calibration_across_views(
+    rules: Mapping[str, FusionRule],
+    views: Sequence[tuple[Tensor, Tensor, Tensor]],  # per shape: (mu [V, D], var [V, D], code [D])
+    view_counts: Sequence[int] = VIEW_COUNTS,
+    draws: int = 12,
+    seed: int = 0,
+    sdf: Sequence[tuple[Tensor, Tensor]] | None = None,  # per shape: (points [P, 3], sdf [P])
+    decoder=None,
+    sdf_temperature: float | None = None,
+) -> list[dict]:
+    """One row per (rule, n views): latent (and with `sdf`, SDF) calibration scores over every shape.
+
+    Every rule fuses the same subsets of views. A shape with fewer than n views is left out of that n's
+    rows; `n_shapes` says how many were scored.
+    """
+    rows = []
+    for n in view_counts:
+        generator = torch.Generator().manual_seed(seed + n)
+        usable = [i for i, (mu, _, _) in enumerate(views) if mu.shape[0] >= n]
+        subsets = {i: view_subsets(views[i][0].shape[0], n, draws, generator) for i in usable}
+        for name, rule in rules.items():
+            latent_err, latent_std, sdf_err, sdf_std = [], [], [], []
+            for i in usable:
+                mu, var, code = views[i]
+                fused_mu, fused_var, error = fused_errors(rule, mu, var, code, subsets[i])
+                latent_err.append(error.reshape(-1)), latent_std.append(fused_var.sqrt().reshape(-1))
+                if sdf is not None:
+                    e, s = sdf_errors(decoder, fused_mu, fused_var, *sdf[i], sdf_temperature)
+                    sdf_err.append(e.reshape(-1)), sdf_std.append(s.reshape(-1))
+            if not usable:
+                continue
+            row = {"fusion": name, "n_views": n, "n_shapes": len(usable)}
+            row.update(
+                {f"latent_{k}": v for k, v in interval_scores(torch.cat(latent_err), torch.cat(latent_std)).items()}
+            )
+            if sdf is not None:
+                row.update({f"sdf_{k}": v for k, v in interval_scores(torch.cat(sdf_err), torch.cat(sdf_std)).items()})
+            rows.append(row)
+    return rows
+
+
+def plot_calibration_across_views(rows: Sequence[dict], target: float = 0.05):
+    """A Figure: calibration error against views fused, one line per rule; latent and (if scored) SDF panels."""
+    from matplotlib.figure import Figure
+
+    if not rows:
+        raise ValueError("no rows to plot: run calibration_across_views first")
+    spaces = [s for s in ("latent", "sdf") if f"{s}_calibration_error" in rows[0]]
+    fig = Figure(figsize=(4.2 * len(spaces), 3.6))
+    for j, space in enumerate(spaces):
+        ax = fig.add_subplot(1, len(spaces), j + 1)
+        for name in dict.fromkeys(r["fusion"] for r in rows):
+            mine = [r for r in rows if r["fusion"] == name]
+            ax.plot(
+                [r["n_views"] for r in mine], [r[f"{space}_calibration_error"] for r in mine], marker="o", label=name
+            )
+        ax.axhline(target, linestyle="--", color="black", linewidth=1, label=f"target {target}")
+        ax.set(xlabel="views fused", ylabel="calibration error", title=f"{space} calibration across views")
+        ax.set_xscale("log")
+        ax.legend(fontsize="small")
+    fig.tight_layout()
+    return fig
+
+
+def evaluation_rules(checkpoint, k: int) -> tuple[dict[str, FusionRule], float | None, float | None]:
+    """(every fusion rule by name, latent T, SDF T) for a run: the paper's three, intersection, and `shared`
+    (with `shared`-K) where --fit-temperature stored the shared error; without it, a warning says how."""
+    import logging
+
+    from ushape.fusion import (
+        AverageFusion,
+        BayesianFusion,
+        BayesianKFusion,
+        CovarianceIntersectionFusion,
+        SharedErrorFusion,
+    )
+    from ushape.reconstruction.predictor import read_shared_error, read_temperatures, temperature_path
+
+    rules = {"average": AverageFusion(), "bayesian": BayesianFusion(), f"bayesian-{k}": BayesianKFusion(k)}
+    rules["intersection"] = CovarianceIntersectionFusion()
+    fit = read_shared_error(checkpoint)
+    if fit is None:
+        logging.getLogger(__name__).warning(
+            "calibration across views without the shared rule: %s has no shared error; fit it with "
+            "`python reconstruct.py --fit-temperature --checkpoint %s`",
+            temperature_path(checkpoint),
+            checkpoint,
+        )
+        return rules, None, None
+    rules["shared"] = SharedErrorFusion(fit.shared_var, fit.view_scale)
+    rules[f"shared-{k}"] = SharedErrorFusion(fit.shared_var, fit.view_scale, k=k)
+    return rules, *read_temperatures(checkpoint)
+
+
+def view_calibration_protocol(run, settings, encodings, codes, draws: int = 6) -> list[dict]:
+    """Table V's rows for one evaluated run: every rule at 1, 3 and 10 fused test views, latent and SDF.
+
+    All rules fuse the temperature-scaled view variances (the shared error was fitted on them): the
+    stored T is applied here where the evaluation did not apply it already.
+    """
+    from ushape.data.sdf_dataset import sdf_points
+
+    if not run.spec.probabilistic:
+        return []
+    rules, latent_t, sdf_t = evaluation_rules(run.predictor.checkpoint, settings.table4_k)
+    scale = latent_t if latent_t is not None and run.predictor.temperature is None else 1.0
+    sdf_t = run.predictor.sdf_temperature if run.predictor.sdf_temperature is not None else sdf_t
+    ids = list(dict.fromkeys(key.shape_id for key in encodings.keys))
+    views, sdf = [], []
+    for shape_id in ids:
+        rows = [i for i, key in enumerate(encodings.keys) if key.shape_id == shape_id]
+        views.append((encodings.mu[rows], encodings.var[rows] * scale, codes.lookup(shape_id)))
+        sdf.append(sdf_points(run.world, shape_id, settings.sdf_points))
+    rows = calibration_across_views(
+        rules, views, draws=draws, seed=settings.seed, sdf=sdf, decoder=run.predictor.decoder, sdf_temperature=sdf_t
+    )
+    return [{"encoder": run.spec.name, "label": run.spec.label, **row} for row in rows]
+
+
+def table_view_calibration(rows: Sequence[dict]):
+    """Table V: calibration across views, per encoder, fusion rule and number of fused views."""
+    from ushape.evaluation.tables import Table
+
+    table = Table(
+        "Table V: calibration across fused views",
+        "Each test shape's views fused n at a time (n = 1: every view; else random subsets of n distinct views) "
+        "by each rule, on temperature-scaled view variances, against the shape's own code (latent, per "
+        "dimension) and its ground-truth SDF samples (linearised propagation, SDF temperature applied). CE: "
+        "calibration error; err/var: mean squared error over mean variance (1 when calibrated); cov90: "
+        "coverage of the 90 % interval. Bayesian treats the views' errors as independent; shared adds back "
+        "the error they share (fitted on val).",
+        ["Method", "Fusion", "views", "shapes", "latent CE", "latent err/var", "latent cov90", "SDF CE", "SDF err/var"]
+        + ["SDF cov90"],
+    )
+    for r in rows:
+        table.rows.append(
+            [r["label"], r["fusion"], r["n_views"], r["n_shapes"]]
+            + [r[f"{s}_{m}"] for s in ("latent", "sdf") for m in ("calibration_error", "error_over_var", "coverage90")]
+        )
+    return table
