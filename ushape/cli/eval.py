@@ -3,12 +3,10 @@
 import hydra
 from omegaconf import DictConfig
 
+from ushape.evaluation.command import run_eval
 from ushape.workspace import CONFIG_DIR
 
 
 @hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="eval")
 def main(cfg: DictConfig) -> float | None:
-    # Imported after composition: a config error is answered without loading Lightning.
-    from ushape.evaluation.command import run_eval
-
     return run_eval(cfg)
