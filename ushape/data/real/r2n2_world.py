@@ -39,7 +39,7 @@ from ushape.data.jobs import run_jobs
 from ushape.data.layout import SPLITS, WorldIndex
 from ushape.data.real import r2n2_voxels, shapenet, shapenet_rendering
 from ushape.data.real.mesh_sdf import MeshProcessingError, normalise_mesh
-from ushape.data.real.shapenet_world import _json_differs, _read_skipped, _split_fingerprint
+from ushape.data.real.shapenet_world import _json_differs, _read_skipped, _split_fingerprint, write_splits
 from ushape.data.rendering import render_views
 from ushape.data.sampling import sample_points, split_by_sign
 from ushape.data.shape_artifacts import artifact_problems
@@ -189,16 +189,7 @@ class R2N2World:
                 log.warning("skipping R2N2 model %s: %s", model_id, reason)
                 skipped[model_id] = reason
                 atomic.write_json(root / SKIPPED_FILE, skipped)  # as they come: an interrupted build keeps them
-        atomic.write_json(root / SKIPPED_FILE, skipped)
-        splits = {s: [m for m in planned[s] if m not in skipped] for s in SPLITS}
-        if not splits["train"]:
-            raise ValueError(
-                f"no usable training shape in {self.synset} under {self.voxels_root}: {len(skipped)} skipped "
-                f"(see {root / SKIPPED_FILE}); check the split file and the voxel layout"
-            )
-        for split in SPLITS:
-            if _json_differs(light.split_path(split), splits[split]):
-                atomic.write_json(light.split_path(split), splits[split])
+        write_splits(light, planned, skipped, f"{self.synset} under {self.voxels_root}", "the voxel layout")
         log.info(
             "R2N2 %s world %s ready in %.1fs (%d models, %d skipped)",
             self.synset,

@@ -156,16 +156,7 @@ class ShapeNetWorld:
             if reason is not None:
                 log.warning("skipping ShapeNet model %s: %s", model_id, reason)
                 skipped[model_id] = reason
-        atomic.write_json(root / SKIPPED_FILE, skipped)
-        splits = {s: [m for m in planned[s] if m not in skipped] for s in SPLITS}
-        if not splits["train"]:
-            raise InputError(
-                f"no usable training shape in {self.synset} under {self.root}: {len(skipped)} skipped "
-                f"(see {root / SKIPPED_FILE}); check the split file and the dataset layout"
-            )
-        for split in SPLITS:
-            if _json_differs(index.split_path(split), splits[split]):
-                atomic.write_json(index.split_path(split), splits[split])
+        write_splits(index, planned, skipped, f"{self.synset} under {self.root}", "the dataset layout")
         log.info(
             "ShapeNet %s world %s ready in %.1fs (%d skipped)",
             self.synset,
@@ -284,6 +275,23 @@ def _split_fingerprint(source: shapenet.SplitSource) -> Any:
     files = sorted(path.glob("*.json")) if path.is_dir() else [path]
     digest = hashlib.sha256(b"".join(f.read_bytes() for f in files if f.is_file())).hexdigest()[:12]
     return {"path": str(path), "sha256": digest}
+
+
+def write_splits(
+    index: WorldIndex, planned: dict[str, list[str]], skipped: dict[str, str], source: str, layout: str
+) -> None:
+    """skipped.json, and each split's file as planned less the skipped models (rewritten only when it changed);
+    an InputError naming `source` when no training shape is left."""
+    atomic.write_json(index.root / SKIPPED_FILE, skipped)
+    splits = {s: [m for m in planned[s] if m not in skipped] for s in SPLITS}
+    if not splits["train"]:
+        raise InputError(
+            f"no usable training shape in {source}: {len(skipped)} skipped "
+            f"(see {index.root / SKIPPED_FILE}); check the split file and {layout}"
+        )
+    for split in SPLITS:
+        if _json_differs(index.split_path(split), splits[split]):
+            atomic.write_json(index.split_path(split), splits[split])
 
 
 def _json_differs(path: Path, value: Any) -> bool:
