@@ -3,10 +3,8 @@
 Each case was found by a fault probe of a fresh checkout, run as a new user would: Hydra's composition
 errors, and the data errors raised inside a Hydra job, came out as Hydra's text block (or a traceback)
 with exit code 1; a corrupt views.npz beside a render and a 15000 x 15000 PNG gave raw tracebacks.
-Every command here fails before any training; the files are tiny and synthetic. Those that load
-Lightning (a data error is met inside the job, a reconstruction loads the model) take 25-45 s each on
-a loaded 2-core machine and are marked slow (`pytest -m slow tests/faults`); the composition errors
-are answered before it is imported.
+Every command here fails before any training; the files are tiny and synthetic. Each takes 2-10 s on
+an idle 2-core machine (most of it starting Python, torch and Lightning), so all run in the default suite.
 """
 
 import json
@@ -64,7 +62,6 @@ def test_an_unknown_option_or_key_is_one_line_with_the_choices(tmp_path, overrid
     assert files_under(tmp_path) == []
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize(
     "override, named",
     [
@@ -79,7 +76,6 @@ def test_a_bad_value_is_named_before_any_data_is_made(tmp_path, override, named)
     assert files_under(tmp_path) == []
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize(
     "layout, named",
     [
@@ -100,14 +96,12 @@ def test_a_shapenet_root_that_is_not_one_is_named(tmp_path, layout, named):
     assert not (tmp_path / "outputs" / "runs").exists() or files_under(tmp_path / "outputs" / "runs") == []
 
 
-@pytest.mark.slow
 def test_a_missing_data_root_says_to_give_it(tmp_path):
     """`data=shapenet` alone: OmegaConf's MissingMandatoryValue traceback."""
     line = error_line(run_command(tmp_path, "train.py", "data=shapenet", timeout=300))
     assert "data.root has no value" in line and "data.root=<value>" in line, line
 
 
-@pytest.mark.slow
 def test_pix3d_is_refused_for_training(tmp_path):
     """Pix3D has test shapes only: training preprocessed all of it, then failed on an empty train split."""
     root = tmp_path / "pix3d"
@@ -182,7 +176,6 @@ def good_image(path: Path) -> Path:
     return path
 
 
-@pytest.mark.slow
 def test_a_huge_image_alone_is_refused_by_name(ellipsoid_run, tmp_path):
     """Pillow's DecompressionBombError came out as a raw traceback with exit code 1."""
     huge = huge_png(tmp_path / "huge.png")
@@ -190,7 +183,6 @@ def test_a_huge_image_alone_is_refused_by_name(ellipsoid_run, tmp_path):
     assert f"image {huge} has more than 89,478,485 pixels" in line and "downscale it" in line, line
 
 
-@pytest.mark.slow
 def test_a_huge_image_beside_good_ones_is_skipped_and_they_go_on(ellipsoid_run, tmp_path):
     huge, good = huge_png(tmp_path / "huge.png"), good_image(tmp_path / "good.png")
     result = reconstruct(tmp_path, ellipsoid_run["run"], huge, good)
@@ -201,7 +193,6 @@ def test_a_huge_image_beside_good_ones_is_skipped_and_they_go_on(ellipsoid_run, 
     assert [s["image"] for s in summary["skipped"]] == [str(huge)]
 
 
-@pytest.mark.slow
 def test_a_render_with_a_corrupt_views_npz_is_reconstructed_from_the_canonical_camera(ellipsoid_run, tmp_path):
     """A truncated views.npz raised zipfile.BadZipFile; only the depth map needs the camera, so it is named
     in a warning and the view is traced from the canonical camera, as a photo is."""
