@@ -54,11 +54,7 @@ def fuse_shared(
     var_floor: float = 1e-8,
 ) -> FusedCode:
     """Bayesian fusion's mean with the shared error added back: var = S + c (sum_v var_v^-1)^-1 -> [..., D]."""
-    mu, var = as_floating(mu, var)
-    check_views(mu, var)
-    shared_var = torch.as_tensor(shared_var, dtype=var.dtype)
-    check_shared(shared_var, view_scale, mu.shape[-1])
-    return add_shared(fuse_bayesian(mu, var, var_floor), shared_var, view_scale)
+    return _with_shared(lambda m, v: fuse_bayesian(m, v, var_floor), mu, var, shared_var, view_scale)
 
 
 def fuse_shared_k(
@@ -70,11 +66,16 @@ def fuse_shared_k(
     var_floor: float = 1e-8,
 ) -> FusedCode:
     """`fuse_shared` on the K views Bayesian-K keeps (lowest trace of the views' own var: the same choice)."""
+    return _with_shared(lambda m, v: fuse_bayesian_k(m, v, k, var_floor), mu, var, shared_var, view_scale)
+
+
+def _with_shared(fuse, mu: Tensor, var: Tensor, shared_var: Tensor, view_scale: float) -> FusedCode:
+    """The views checked, fused by `fuse` (mu, var [..., V, D] -> FusedCode), and the shared error added back."""
     mu, var = as_floating(mu, var)
     check_views(mu, var)
     shared_var = torch.as_tensor(shared_var, dtype=var.dtype)
     check_shared(shared_var, view_scale, mu.shape[-1])
-    return add_shared(fuse_bayesian_k(mu, var, k, var_floor), shared_var, view_scale)
+    return add_shared(fuse(mu, var), shared_var, view_scale)
 
 
 def fuse_intersection(mu: Tensor, var: Tensor, var_floor: float = 1e-8) -> FusedCode:
