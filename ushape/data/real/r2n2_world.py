@@ -39,10 +39,17 @@ from ushape.data.jobs import run_jobs
 from ushape.data.layout import SPLITS, WorldIndex
 from ushape.data.real import r2n2_voxels, shapenet, shapenet_rendering
 from ushape.data.real.mesh_sdf import MeshProcessingError, normalise_mesh
-from ushape.data.real.shapenet_world import _json_differs, _read_skipped, _split_fingerprint, write_splits
+from ushape.data.real.shapenet_world import (
+    _json_differs,
+    _read_skipped,
+    _split_fingerprint,
+    checked_renderings_root,
+    write_splits,
+)
 from ushape.data.rendering import render_views
 from ushape.data.sampling import sample_points, split_by_sign
 from ushape.data.shape_artifacts import artifact_problems
+from ushape.errors import MissingInputError
 
 log = logging.getLogger(__name__)
 
@@ -99,14 +106,10 @@ class R2N2World:
         self.synset = shapenet.synset_id(category)
         self.voxels_root = Path(voxels_root).expanduser().resolve()
         if not (self.voxels_root / self.synset).is_dir():
-            raise FileNotFoundError(
+            raise MissingInputError(
                 f"voxels_root {self.voxels_root} has no folder {self.synset}. Expected {r2n2_voxels.EXPECTED_LAYOUT}"
             )
-        self.renderings_root = str(Path(renderings_root).expanduser().resolve()) if renderings_root else None
-        if self.renderings_root:
-            shapenet_rendering.check_root(self.renderings_root, self.synset)
-            if int(n_views) > 24:
-                raise ValueError(f"ShapeNetRendering has 24 views per model; n_views={n_views} is too many")
+        self.renderings_root = checked_renderings_root(renderings_root, self.synset, n_views)
         self.cache_root = Path(cache_root).expanduser()
         self.split_file = split_file
         self.num_workers = int(num_workers)

@@ -87,11 +87,7 @@ class ShapeNetWorld:
         self.synset = shapenet.synset_id(category)
         self.root = Path(root).expanduser().resolve()
         self.layout, self.available = shapenet.list_models(self.root, self.synset)
-        self.renderings_root = str(Path(renderings_root).expanduser().resolve()) if renderings_root else None
-        if self.renderings_root:
-            shapenet_rendering.check_root(self.renderings_root, self.synset)
-            if int(n_views) > 24:
-                raise InputError(f"ShapeNetRendering has 24 views per model; n_views={n_views} is too many")
+        self.renderings_root = checked_renderings_root(renderings_root, self.synset, n_views)
         self.cache_root = Path(cache_root).expanduser()
         self.split_file = split_file
         self.num_workers = int(num_workers)
@@ -275,6 +271,18 @@ def _split_fingerprint(source: shapenet.SplitSource) -> Any:
     files = sorted(path.glob("*.json")) if path.is_dir() else [path]
     digest = hashlib.sha256(b"".join(f.read_bytes() for f in files if f.is_file())).hexdigest()[:12]
     return {"path": str(path), "sha256": digest}
+
+
+def checked_renderings_root(renderings_root: str | Path | None, synset: str, n_views: int) -> str | None:
+    """The ShapeNetRendering root as an absolute path (None without one), checked to hold the synset and
+    at least n_views renders per model (it has 24)."""
+    if not renderings_root:
+        return None
+    root = str(Path(renderings_root).expanduser().resolve())
+    shapenet_rendering.check_root(root, synset)
+    if int(n_views) > 24:
+        raise InputError(f"ShapeNetRendering has 24 views per model; n_views={n_views} is too many")
+    return root
 
 
 def write_splits(
