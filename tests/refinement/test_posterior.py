@@ -6,6 +6,7 @@ Its silhouette and depth are analytic in z, so the MAP code and the Laplace cova
 
 import dataclasses
 
+import numpy as np
 import pytest
 import torch
 from torch import nn
@@ -191,3 +192,59 @@ def test_bad_inputs_say_what_to_pass():
         refine(SphereDecoder(), torch.zeros(4), torch.ones(4), [view])
     with pytest.raises(ValueError, match="refine mode"):
         refine(SphereDecoder(), torch.zeros(4), torch.ones(4), [view], RefineSettings(mode="photo"))
+
+
+def test_free_space_rows_see_matter_in_front_of_the_depth_returns_and_their_jacobian_is_exact():
+    decoder = SphereDecoder()
+    K, w2c = cameras(1)[0]
+    view = sphere_view(K, w2c, radius(Z_TRUE))
+    obs = dataclasses.replace(OBS, free_margin=0.03)
+    returns = int((view.depth > 0).sum())
+    at_truth = residuals(decoder, Z_TRUE.float(), [view], obs, use_depth=True)
+    free = at_truth.kind == 2
+    assert int(free.sum()) == returns
+    # The true sphere leaves the segment in front of each return empty, even where the surface is slanted.
+    assert torch.all(at_truth.r[free] == 0) and torch.all(at_truth.J[free] == 0)
+    # A sphere 0.08 larger puts matter in front of every return: r = the segment's minimum SDF, at the
+    # segment's end, 0.03 cos(slant) - 0.08: -0.05 on the central ray, down to -0.08 at grazing rays.
+    bigger = Z_TRUE.clone()
+    bigger[0] += 0.8
+    grown = residuals(decoder, bigger.float(), [view], obs, use_depth=True)
+    r = grown.r[grown.kind == 2]
+    assert float(r.max()) == pytest.approx(-0.05, abs=2e-3) and float(r.min()) > -0.08
+    # dr/dz = ds/dz at the segment's minimum = -c on every row that sees matter.
+    inside = (grown.kind == 2) & (grown.r < 0)
+    assert int(inside.sum()) > 10
+    assert torch.allclose(grown.J[inside], -C.float().expand(int(inside.sum()), -1), atol=1e-6)
+
+
+class FloaterDecoder(SphereDecoder):
+    """The sphere, and a floating ball of radius 0.05 + 0.1 z[2] at `centre` (none where that is negative)."""
+
+    def __init__(self, centre) -> None:
+        super().__init__()
+        self.register_buffer("centre", torch.as_tensor(centre, dtype=torch.float32))
+
+    def forward(self, xyz, z):
+        floater = (xyz - self.centre).norm(dim=-1) - (0.05 + 0.1 * z[..., 2])
+        return torch.minimum(super().forward(xyz, z), floater)
+
+
+def test_free_space_removes_matter_that_neither_the_silhouette_nor_the_returns_see():
+    K, w2c = cameras(1)[0]
+    eye = -w2c[:3, :3].T @ w2c[:3, 3]
+    decoder = FloaterDecoder(0.7 * eye / np.linalg.norm(eye))  # between the camera and the sphere
+    truth = Z_TRUE.clone()
+    truth[2] = -1.0  # no floater: the view sees the sphere alone
+    view = sphere_view(K, w2c, radius(truth))
+    # The prior believes in a floater of radius 0.15; it hides inside the sphere's silhouette and
+    # none of the returns lies on it, so masks and the surface term leave it where the prior put it.
+    mu, var = torch.tensor([1.0, -0.6, 1.0, 0.0]), torch.tensor([0.01, 0.01, 1.0, 1.0])
+    settings = RefineSettings(mode="depth", sigma_depth=0.02, iterations=10, tau_schedule=(1.0,))
+    no_free = dataclasses.replace(OBS, free_margin=0.0)
+    kept = refine(decoder, mu, var, [view], dataclasses.replace(settings, observation=no_free))
+    removed = refine(decoder, mu, var, [view], dataclasses.replace(settings, observation=OBS))
+    assert removed.rows["free"] == removed.rows["depth"] > 100 and kept.rows["free"] == 0
+    assert 0.05 + 0.1 * float(kept.mu[2]) > 0.14
+    # Down to what the ray samples resolve (a step of ~0.025 along the segment), from 0.15.
+    assert 0.05 + 0.1 * float(removed.mu[2]) < 0.03

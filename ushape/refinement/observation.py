@@ -17,7 +17,13 @@ Depth, two models (`depth_residual`):
     trained chairs decoder this model measured worse (docs/refinement.md): a trace that reaches another
     part than the view saw, and the grazing-ray sensitivity, pull the code to shapes the masks allow
     but the depths do not.
-Silhouettes handle the pixels without a return.
+Silhouettes handle the pixels without a return. Free space (`free_margin` > 0, with depth): the segment
+of each returning ray in front of its return, up to `free_margin` short of it, must be empty: the row is
+min(m, 0) of the segment's minimum SDF m, in SDF units like the surface term (DeepSDF's completion
+samples free space the same way). Without it a code may put matter between the camera and the surface
+it saw, which the surface term alone never sees. A hinge, not an occupancy with target 0: the true
+surface seen at a slant has an SDF of only margin x cos(slant) at the segment's end, which a sigmoid
+would read as partly occupied and push the surface back.
 
 Pixels marked unobserved carry no residual. Rays are taken on a regular sub-grid of the image
 (every `stride`-th pixel per axis) so a 64 px view and a 256 px view cost alike.
@@ -55,10 +61,14 @@ class ObservationSettings:
     bound: float = 1.0
     min_cosine: float = MIN_COSINE
     depth_residual: str = "surface"  # "surface" | "trace" (see the module docstring)
+    free_margin: float = 0.03  # free space ends this far (camera z) before each depth return; 0: no free-space rows
+
+
+KINDS = ("masks", "depth", "free")  # a row's kind: silhouette, depth return, free space before a return
 
 
 class Residuals(NamedTuple):
-    """Residuals r [R], their Jacobian dr/dz [R, D], and per-row kind (0 mask, 1 depth) [R]."""
+    """Residuals r [R], their Jacobian dr/dz [R, D] (empty [0, D] when not asked for), per-row kind [R] (KINDS)."""
 
     r: Tensor
     J: Tensor
@@ -102,9 +112,12 @@ def ray_minimum(
     origins: Tensor,  # [R, 3]
     directions: Tensor,  # [R, 3]
     settings: ObservationSettings,
+    far_limit: Tensor | None = None,  # [R] the segment ends here (ray parameter), else at the cube's exit
 ) -> tuple[Tensor, Tensor]:
-    """Minimum SDF along each ray inside the cube [R] (+inf for a ray that misses it) and its point [R, 3]."""
+    """Minimum SDF along each ray's segment inside the cube [R] (+inf for an empty segment) and its point [R, 3]."""
     near, far = ray_box(origins, directions, settings.bound)
+    if far_limit is not None:
+        far = torch.minimum(far, far_limit)
     inside = far > near
     o, d = origins[inside], directions[inside]
     n, f = near[inside], far[inside]
@@ -124,19 +137,22 @@ def ray_minimum(
     return minimum, points
 
 
-def silhouette_residuals(
+def occupancy_residuals(
     sdf: PointsSDF,
-    gradients: PointsGradients,
-    view: ObservedView,
+    gradients: PointsGradients | None,  # None: residuals only
+    origins: Tensor,  # [R, 3]
+    directions: Tensor,  # [R, 3]
+    target: Tensor,  # [R] observed occupancy of each ray's segment
     settings: ObservationSettings,
     latent_size: int,
+    far_limit: Tensor | None = None,  # [R] see ray_minimum
 ) -> tuple[Tensor, Tensor]:
-    """Predicted minus observed occupancy r [R] at the view's observed sub-grid, and dr/dz [R, D]."""
-    origins, directions, pixels = view_rays(view, settings)
-    target = view.mask.reshape(-1)[pixels].float()
-    minimum, points = ray_minimum(sdf, origins, directions, settings)
+    """Predicted minus observed occupancy r [R] of each ray's segment, and dr/dz [R, D] ([0, D] without gradients)."""
+    minimum, points = ray_minimum(sdf, origins, directions, settings, far_limit)
     p = torch.sigmoid(-minimum / settings.tau)
-    J = torch.zeros(pixels.shape[0], latent_size)
+    if gradients is None:
+        return p - target, torch.zeros(0, latent_size)
+    J = torch.zeros(origins.shape[0], latent_size)
     near = (minimum.abs() < settings.band * settings.tau).nonzero().squeeze(1)
     if near.numel():
         _, grad_z, _ = gradients(points[near])
@@ -144,9 +160,47 @@ def silhouette_residuals(
     return p - target, J
 
 
+def silhouette_residuals(
+    sdf: PointsSDF,
+    gradients: PointsGradients | None,
+    view: ObservedView,
+    settings: ObservationSettings,
+    latent_size: int,
+) -> tuple[Tensor, Tensor]:
+    """Predicted minus observed occupancy r [R] at the view's observed sub-grid, and dr/dz [R, D]."""
+    origins, directions, pixels = view_rays(view, settings)
+    target = view.mask.reshape(-1)[pixels].float()
+    return occupancy_residuals(sdf, gradients, origins, directions, target, settings, latent_size)
+
+
+def free_space_residuals(
+    sdf: PointsSDF,
+    gradients: PointsGradients | None,
+    view: ObservedView,
+    settings: ObservationSettings,
+    latent_size: int,
+) -> tuple[Tensor, Tensor]:
+    """min(m, 0) [R'] of each returning ray's minimum SDF m in front of its return (`free_margin` short of it),
+    in SDF units, and dr/dz [R', D]: zero where that segment is empty, whatever the surface's slant."""
+    if view.depth is None or settings.free_margin <= 0:
+        return torch.zeros(0), torch.zeros(0, latent_size)
+    origins, directions, pixels = view_rays(view, settings)
+    observed = view.depth.reshape(-1)[pixels].float()
+    rows = (observed > 0).nonzero().squeeze(1)
+    minimum, points = ray_minimum(sdf, origins[rows], directions[rows], settings, observed[rows] - settings.free_margin)
+    r = minimum.clamp(max=0.0)  # an empty segment (+inf) has no residual
+    if gradients is None:
+        return r, torch.zeros(0, latent_size)
+    J = torch.zeros(rows.shape[0], latent_size)
+    inside = (r < 0).nonzero().squeeze(1)
+    if inside.numel():
+        J[inside] = gradients(points[inside])[1]
+    return r, J
+
+
 def depth_residuals(
     sdf: PointsSDF,
-    gradients: PointsGradients,
+    gradients: PointsGradients | None,
     view: ObservedView,
     settings: ObservationSettings,
     latent_size: int,
@@ -161,7 +215,10 @@ def depth_residuals(
         rows = (observed > 0).nonzero().squeeze(1)
         if rows.numel() == 0:
             return torch.zeros(0), torch.zeros(0, latent_size)
-        s, grad_z, _ = gradients(origins[rows] + observed[rows, None] * directions[rows])
+        x = origins[rows] + observed[rows, None] * directions[rows]
+        if gradients is None:
+            return sdf(x), torch.zeros(0, latent_size)
+        s, grad_z, _ = gradients(x)
         return s, grad_z
     if settings.depth_residual != "trace":
         raise ValueError(f"depth_residual must be 'surface' or 'trace', got {settings.depth_residual!r}")
@@ -172,6 +229,8 @@ def depth_residuals(
     if rows.numel() == 0:
         return torch.zeros(0), torch.zeros(0, latent_size)
     depth = t[0, rows]
+    if gradients is None:
+        return depth - observed[rows], torch.zeros(0, latent_size)
     _, grad_z, grad_x = gradients(origins[rows] + depth[:, None] * directions[rows])
     J = depth_sensitivity(grad_z, grad_x, directions[rows], settings.min_cosine)
     return depth - observed[rows], J
@@ -183,15 +242,16 @@ def residuals(
     views: list[ObservedView],
     settings: ObservationSettings,
     use_depth: bool,
+    jacobian: bool = True,  # False: r and kind only (J is [0, D]), for scoring candidate codes
 ) -> Residuals:
-    """Every view's silhouette residuals (and depth residuals where use_depth), stacked, with dr/dz."""
+    """Every view's silhouette residuals (and depth and free-space residuals where use_depth), stacked, with dr/dz."""
     sdf, gradients = code_functions(decoder, z.detach().float())
+    gradients = gradients if jacobian else None
+    terms = [(0, silhouette_residuals)] + ([(1, depth_residuals), (2, free_space_residuals)] if use_depth else [])
     rs, Js, kinds = [], [], []
     for view in views:
-        parts = [silhouette_residuals(sdf, gradients, view, settings, z.shape[0])]
-        if use_depth:
-            parts.append(depth_residuals(sdf, gradients, view, settings, z.shape[0]))
-        for kind, (r, J) in enumerate(parts):
+        for kind, term in terms:
+            r, J = term(sdf, gradients, view, settings, z.shape[0])
             rs.append(r)
             Js.append(J)
             kinds.append(torch.full((r.shape[0],), kind))

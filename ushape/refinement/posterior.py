@@ -8,7 +8,10 @@ and depths with use_depth) with per-row weights W = 1 / sigma^2:
 Each step solves (H + lambda diag H) dz = -g with the Gauss-Newton H = Sigma^-1 + J^T W J and
 g = Sigma^-1 (z - mu) + J^T W r; a step that does not lower E is retried with a larger lambda.
 Depth rows are Huber-weighted (weight min(1, delta / |r|)): a trace that reaches the back leg where
-the view saw the front one must not drag the code. At the optimum z* the Laplace posterior is
+the view saw the front one must not drag the code. Two guards against the local minima a sharp silhouette has: the LM runs at a sequence of silhouette
+sharpnesses (`tau_schedule`, multiples of the observation's tau, widest first: a wide sigmoid gives rows
+to pixels the shape misses by far), and it may start from the lowest-energy of the prior's mean and
+`starts` draws from the prior (the same energy, so the MAP it looks for is unchanged). At the optimum z* the Laplace posterior is
 N(z*, (Sigma^-1 + J^T W J)^-1), a full [D, D] covariance: directions of z that no residual moves
 keep the prior's variance exactly, those a view constrains shrink.
 
@@ -20,14 +23,14 @@ why and a warning logged (callers count them from the records).
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 import torch
 from torch import Tensor
 
 from ushape.decoder.query import frozen
-from ushape.refinement.observation import ObservationSettings, Residuals, residuals
+from ushape.refinement.observation import KINDS, ObservationSettings, Residuals, residuals
 from ushape.refinement.views import ObservedView, check_view
 
 log = logging.getLogger(__name__)
@@ -46,6 +49,9 @@ class RefineSettings:
     damping: float = 1e-3  # initial lambda
     tolerance: float = 1e-4  # stop when E falls by less than this fraction
     max_mahalanobis: float = 60.0  # ||z* - mu|| in prior stds past this counts as diverged
+    tau_schedule: tuple[float, ...] = (4.0, 2.0, 1.0)  # silhouette sharpness per LM stage, x observation.tau
+    starts: int = 0  # prior draws scored beside the prior's mean; the LM starts from the lowest energy
+    seed: int = 0  # of those draws
     observation: ObservationSettings = field(default_factory=ObservationSettings)
 
 
@@ -91,10 +97,12 @@ def prior_precision(var: Tensor) -> Tensor:
 
 
 def row_weights(res: Residuals, settings: RefineSettings) -> Tensor:
-    """W [R]: 1 / sigma^2 per row kind, Huber-down-weighted on depth."""
-    w = torch.where(res.kind == 0, 1.0 / settings.sigma_mask**2, 1.0 / settings.sigma_depth**2).double()
+    """W [R]: 1 / sigma_mask^2 on silhouette rows, 1 / sigma_depth^2 Huber-down-weighted on the SDF-unit rows
+    (depth returns and free space)."""
+    sdf_rows = res.kind > 0
+    w = torch.where(sdf_rows, 1.0 / settings.sigma_depth**2, 1.0 / settings.sigma_mask**2).double()
     huber = (settings.huber_depth / res.r.double().abs().clamp_min(1e-12)).clamp(max=1.0)
-    return torch.where(res.kind == 1, w * huber, w)
+    return torch.where(sdf_rows, w * huber, w)
 
 
 def energy(z: Tensor, mu: Tensor, precision: Tensor, res: Residuals, w: Tensor) -> float:
@@ -111,7 +119,7 @@ def fallback(mu: Tensor, var: Tensor, reason: str, **known: Any) -> Posterior:
 
 def summarise(res: Residuals) -> tuple[dict[str, int], dict[str, float]]:
     rows, rms = {}, {}
-    for kind, name in enumerate(MODES):
+    for kind, name in enumerate(KINDS):
         r = res.r[res.kind == kind]
         rows[name] = int(r.numel())
         rms[name] = float(r.square().mean().sqrt()) if r.numel() else float("nan")
@@ -141,35 +149,71 @@ def refine(
     precision = prior_precision(var)
     prior_mu = mu.detach().double()
     use_depth = settings.mode == "depth"
+    schedule = [replace(settings.observation, tau=settings.observation.tau * m) for m in settings.tau_schedule or (1.0,)]
     with frozen(decoder):
-        return levenberg_marquardt(decoder, prior_mu, var, precision, views, settings, use_depth)
+        z = best_start(decoder, prior_mu, var, precision, views, settings, schedule[0], use_depth)
+        known: dict[str, Any] = {"iterations": 0}
+        for obs in schedule:
+            z, res, w, energies, steps = levenberg_marquardt(decoder, prior_mu, z, precision, views, settings, obs, use_depth)
+            known["iterations"] += steps
+            known.setdefault("energy_start", energies[0])
+            known["energy_end"] = energies[1]
+            if res is None:
+                return fallback(mu, var, "non-finite residual or Jacobian", **known)
+        return laplace(prior_mu, var, z, precision, res, w, settings, known)
+
+
+def best_start(
+    decoder: torch.nn.Module,
+    mu: Tensor,  # [D] float64
+    var: Tensor,  # [D] or [D, D]
+    precision: Tensor,  # [D, D] float64
+    views: list[ObservedView],
+    settings: RefineSettings,
+    obs: ObservationSettings,
+    use_depth: bool,
+) -> Tensor:
+    """The lowest-energy of the prior's mean and `settings.starts` draws from the prior [D] (float64)."""
+    if settings.starts <= 0:
+        return mu.clone()
+    generator = torch.Generator().manual_seed(settings.seed)
+    cov = torch.diag(var.double()) if var.ndim == 1 else var.double()
+    root = torch.linalg.cholesky(0.5 * (cov + cov.T))
+    draws = mu + torch.randn(settings.starts, mu.shape[0], generator=generator, dtype=torch.float64) @ root.T
+    best, best_e = mu.clone(), float("inf")
+    for z in torch.cat([mu[None], draws]):
+        res = residuals(decoder, z.float(), views, obs, use_depth, jacobian=False)
+        e = energy(z, mu, precision, res, row_weights(res, settings))
+        if e < best_e:
+            best, best_e = z.clone(), e
+    return best
 
 
 def levenberg_marquardt(
     decoder: torch.nn.Module,
-    mu: Tensor,  # [D] float64
-    var: Tensor,
+    mu: Tensor,  # [D] float64, the prior's mean
+    z: Tensor,  # [D] float64, the start
     precision: Tensor,  # [D, D] float64
     views: list[ObservedView],
     settings: RefineSettings,
+    obs: ObservationSettings,
     use_depth: bool,
-) -> Posterior:
-    """The damped Gauss-Newton loop of `refine`, from the prior's mean; the Laplace covariance at its end."""
-    obs = settings.observation
-    z, res = mu.clone(), residuals(decoder, mu.float(), views, obs, use_depth)
+) -> tuple[Tensor, Residuals | None, Tensor | None, tuple[float, float], int]:
+    """The damped Gauss-Newton loop of `refine` at one observation setting: (z, residuals and weights at z
+    (None: non-finite), (energy at the start, at the end), steps)."""
+    res = residuals(decoder, z.float(), views, obs, use_depth)
     w = row_weights(res, settings)
     start = e = energy(z, mu, precision, res, w)
     lam, steps = settings.damping, 0
     for steps in range(1, settings.iterations + 1):
         if not (torch.isfinite(res.r).all() and torch.isfinite(res.J).all()):
-            return fallback(mu, var, "non-finite residual or Jacobian", iterations=steps, energy_start=start)
+            return z, None, None, (start, e), steps
         J = res.J.double()
         H = precision + J.T @ (w[:, None] * J)
         g = precision @ (z - mu) + J.T @ (w * res.r.double())
         improved = False
         for _ in range(6):
-            dz = torch.linalg.solve(H + lam * torch.diag(torch.diagonal(H)), -g)
-            trial = z + dz
+            trial = z + torch.linalg.solve(H + lam * torch.diag(torch.diagonal(H)), -g)
             trial_res = residuals(decoder, trial.float(), views, obs, use_depth)
             trial_w = row_weights(trial_res, settings)
             trial_e = energy(trial, mu, precision, trial_res, trial_w)
@@ -184,12 +228,26 @@ def levenberg_marquardt(
         e = trial_e
         if done:
             break
+    return z, res, w, (start, e), steps
+
+
+def laplace(
+    mu: Tensor,  # [D] float64, the prior's mean
+    var: Tensor,
+    z: Tensor,  # [D] float64, the MAP
+    precision: Tensor,  # [D, D] float64
+    res: Residuals,
+    w: Tensor,  # [R]
+    settings: RefineSettings,
+    known: dict[str, Any],
+) -> Posterior:
+    """N(z, (Sigma^-1 + J^T W J)^-1) at the MAP, or the prior when it is non-finite or diverged."""
     J = res.J.double()
     cov = torch.linalg.inv(precision + J.T @ (w[:, None] * J))
     cov = 0.5 * (cov + cov.T)
     distance = float(torch.sqrt((z - mu) @ precision @ (z - mu)))
     rows, rms = summarise(res)
-    known = dict(iterations=steps, energy_start=start, energy_end=e, rows=rows, rms=rms)
+    known = dict(known, rows=rows, rms=rms)
     if not (torch.isfinite(z).all() and torch.isfinite(cov).all()):
         return fallback(mu, var, "non-finite code or covariance", **known)
     if distance > settings.max_mahalanobis:
