@@ -1,0 +1,38 @@
+"""Known answer: errors drawn from (P + s A)^-1 give back s; the posterior's curvature takes s."""
+
+import math
+
+import pytest
+import torch
+
+from ushape.recalibration.refine_information import fit_information_scale, scaled_posterior_std
+
+
+def test_the_information_scale_of_errors_drawn_with_a_known_scale_is_recovered():
+    generator = torch.Generator().manual_seed(0)
+    D, n, s_true = 6, 400, 0.125
+    errors, precisions, informations = [], [], []
+    for _ in range(n):
+        precision = torch.diag(torch.rand(D, generator=generator, dtype=torch.float64) * 4 + 1)
+        J = torch.randn(20, D, generator=generator, dtype=torch.float64)
+        information = J.T @ J * 10
+        cov = torch.linalg.inv(precision + s_true * information)
+        errors.append(torch.linalg.cholesky(cov) @ torch.randn(D, generator=generator, dtype=torch.float64))
+        precisions.append(precision)
+        informations.append(information)
+    scale, before, after = fit_information_scale(errors, precisions, informations)
+    assert abs(math.log2(scale) - math.log2(s_true)) <= 0.5
+    assert after < 0.03 < before
+
+
+def test_scaled_std_is_the_prior_std_at_zero_and_shrinks_with_the_scale():
+    precision = torch.diag(torch.tensor([4.0, 1.0]))
+    information = torch.tensor([[10.0, 0.0], [0.0, 0.0]])
+    assert torch.allclose(scaled_posterior_std(precision, information, 0.0), torch.tensor([0.5, 1.0], dtype=torch.float64))
+    assert scaled_posterior_std(precision, information, 1.0)[0] == pytest.approx(1 / math.sqrt(14))
+    assert scaled_posterior_std(precision, information, 1.0)[1] == pytest.approx(1.0)  # an unseen dimension
+
+
+def test_bad_input_says_what_to_pass():
+    with pytest.raises(ValueError, match="one error, prior precision and information"):
+        fit_information_scale([], [], [])
