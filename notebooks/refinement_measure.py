@@ -1,81 +1,198 @@
-"""Measure the refinement on a trained run's held-out test shapes (the figures of docs/refinement.md).
+"""Measure the refinement on a trained run (the figures of docs/refinement.md).
 
-    PYTHONPATH=. python notebooks/refinement_measure.py CKPT WORLD DECODER_DIR OUT.jsonl [SHAPES] [SIZE] [FIRST]
+    PYTHONPATH=. python notebooks/refinement_measure.py RUN OUT.jsonl [--val N] [--test N] [--size S]
 
-Per test shape, from its first 1 and 6 views fused by Bayes: IoU / Chamfer (Pix3D protocol, 64^3
-mesh) of the fused code and of the code refined on the views' masks and on masks + depth; the
-latent error against the shape's own code and its Mahalanobis^2 / D under the posterior; and,
-from one view, the median full-covariance vertex std on hidden over visible vertices.
+RUN is an encoder run folder (its checkpoints/best.ckpt, the world and stage-1 decoder it names). The prior
+is the views' fused Gaussian: the shared-error rule where `reconstruct.py --fit-temperature` has fitted
+it, else Bayes. Per shape and views fused (1, 3, 10; views spread around the orbit) and mode (masks,
+depth): IoU / Chamfer (Pix3D protocol, 64^3 mesh) of the fused and refined codes and of the shape's own
+code (the ceiling); the latent error, its |error| and the posterior's marginal std per dimension (for the
+calibration error), and J^T W J. From 1 view: median vertex std hidden / visible. From views {0} to
+{0, 6}: how much more the std shrinks on the vertices the added view sees than elsewhere. The
+information scale s is fitted on the first N val shapes and applied to the test shapes' covariances.
 """
 
+import argparse
 import json
-import sys
 import time
 
 import numpy as np
 import torch
 import trimesh
 
+from ushape.checkpoints import load_checkpoint
+from ushape.data.cameras import camera_centre
 from ushape.data.layout import WorldIndex
 from ushape.decoder.artifacts import load_codes
 from ushape.decoder.query import code_sdf_fn, frozen
 from ushape.encoder.datamodule import view_files
-from ushape.fusion import BayesianFusion
 from ushape.mesh.extraction import extract_mesh
+from ushape.mesh.visibility import median_ratio
+from ushape.metrics.calibration import calibration_curve, calibration_error
 from ushape.metrics.pix3d import pix3d_metrics, reference_from_mesh
 from ushape.propagation.linearised import latent_jacobian
-from ushape.reconstruction.predictor import load_predictor
-from ushape.reconstruction.visibility import hidden_over_visible
+from ushape.recalibration.refine_information import fit_information_scale, scaled_posterior_std
+from ushape.reconstruction.calibrated_fusion import default_fusion
+from ushape.reconstruction.predictor import load_predictor, trained_decoder
+from ushape.reconstruction.visibility import hidden_over_visible, visible_vertices
 from ushape.refinement import ObservationSettings, RefineSettings, refine, world_views
+from ushape.refinement.posterior import prior_precision
+
+VIEWS = {1: [0], 3: [0, 4, 8], 10: list(range(10))}
 
 
-def scores(decoder, code, reference, cov=None, world_to_cam=None):
+def mesh_of(decoder, code):
     with frozen(decoder):
         sdf = code_sdf_fn(decoder, code)
         mesh, _ = extract_mesh(sdf, 64)
-        out = pix3d_metrics(mesh, lambda p: (sdf(torch.as_tensor(p, dtype=torch.float32)) < 0).numpy(), reference, emd=False)
-        if cov is not None:
-            _, g = latent_jacobian(decoder, code, torch.as_tensor(np.asarray(mesh.vertices), dtype=torch.float32))
-            cov = torch.diag(cov) if cov.ndim == 1 else cov
-            std = ((g @ cov) * g).sum(-1).clamp_min(0).sqrt().numpy()
-            out.update(hidden_over_visible(mesh, std, world_to_cam), std_median=float(np.median(std)))
-    return out
+    return mesh, sdf
 
 
-def main(ckpt, world_root, decoder_dir, out, shapes=4, size=32, first=0):
-    torch.set_num_threads(1)
-    world, codes, predictor = WorldIndex.load(world_root), load_codes(f"{decoder_dir}/codes_test.pt"), load_predictor(ckpt)
+def scores(decoder, code, reference):
+    mesh, sdf = mesh_of(decoder, code)
+    inside = lambda p: (sdf(torch.as_tensor(p, dtype=torch.float32)) < 0).numpy()  # noqa: E731
+    out = pix3d_metrics(mesh, inside, reference, emd=False)
+    return {"iou": out["iou"], "cd": out["cd"]}, mesh
+
+
+def vertex_std(decoder, code, cov, vertices):
+    _, g = latent_jacobian(decoder, code, torch.as_tensor(np.asarray(vertices), dtype=torch.float32))
+    g = g.double()
+    return ((g @ cov.double()) * g).sum(-1).clamp_min(0).sqrt().numpy()
+
+
+def shape_rows(args, predictor, fusion, world, codes, shape_id, with_vertices):
     decoder = predictor.decoder
-    for shape_id in world.shape_ids("test")[int(first) : int(first) + int(shapes)]:
-        images, _, _ = predictor.load_images(view_files(world.root, shape_id))
-        mu, var = predictor.encode(images)
-        truth = codes.lookup(shape_id)
-        reference = reference_from_mesh(trimesh.load(world.mesh_path(shape_id), process=False))
-        row = {"shape": shape_id, "own_code": scores(decoder, truth, reference)}
-        for n in (1, 6):
-            fused = BayesianFusion()(mu[:n], var[:n])
-            views = world_views(world.views_path(shape_id), list(range(n)))
-            w2c = views[0].world_to_cam if n == 1 else None
-            cases = {"fused": (fused.mu, torch.diag(fused.var), None, 0.0)}
-            for mode in ("masks", "depth"):
-                start = time.perf_counter()
-                settings = RefineSettings(mode=mode, observation=ObservationSettings(size=int(size)))
-                post = refine(decoder, fused.mu, fused.var, views, settings)
-                cases[mode] = (post.mu, post.cov, post.record(), time.perf_counter() - start)
-            for name, (code, cov, record, seconds) in cases.items():
-                error = (truth - code).double()
-                row[f"{n}view_{name}"] = {
-                    **scores(decoder, code, reference, cov if n == 1 else None, w2c),
-                    "sq_error": float(error @ error),
-                    "trace": float(torch.diagonal(cov).sum()),
-                    "mahalanobis2_per_dim": float(error @ torch.linalg.solve(cov.double(), error)) / error.numel(),
-                    "refine": record,
-                    "seconds": round(seconds, 1),
-                }
-        with open(out, "a") as f:
-            f.write(json.dumps(row) + "\n")
-        print(shape_id, {k: round(v["iou"], 3) for k, v in row.items() if isinstance(v, dict)}, flush=True)
+    images, _, _ = predictor.load_images(view_files(world.root, shape_id))
+    mu, var = predictor.encode(images)
+    truth = codes.lookup(shape_id)
+    reference = reference_from_mesh(trimesh.load(world.mesh_path(shape_id), process=False))
+    rows = []
+    own, _ = scores(decoder, truth, reference)
+    for n, chosen in VIEWS.items():
+        fused = fusion(mu[chosen], var[chosen])
+        views = world_views(world.views_path(shape_id), chosen)
+        row = {"shape": shape_id, "views": n, "own": own, "fused": scores(decoder, fused.mu, reference)[0]}
+        row["fused"]["abs_error"] = (fused.mu - truth).abs().tolist()
+        row["fused"]["std"] = fused.var.sqrt().tolist()
+        for mode in ("masks", "depth"):
+            start = time.perf_counter()
+            settings = RefineSettings(mode=mode, observation=ObservationSettings(size=args.size))
+            post = refine(decoder, fused.mu, fused.var, views, settings)
+            seconds = time.perf_counter() - start
+            s, mesh = scores(decoder, post.mu, reference)
+            s.update(seconds=round(seconds, 1), fallback=post.fallback, iterations=post.iterations)
+            s["abs_error"] = (post.mu - truth).abs().tolist()
+            s["information"] = post.information.tolist() if post.information is not None else None
+            s["prior_precision"] = prior_precision(fused.var).tolist()
+            if with_vertices and n == 1:
+                std = vertex_std(decoder, post.mu, post.cov, mesh.vertices)
+                s.update(hidden_over_visible(mesh, std, views[0].world_to_cam))
+                s["shrink_seen_over_unseen"] = shrink_ratio(args, decoder, fusion, mu, var, world, shape_id, mode)
+            row[mode] = s
+        rows.append(row)
+    return rows
+
+
+def shrink_ratio(args, decoder, fusion, mu, var, world, shape_id, mode):
+    """Median std shrink, views {0} -> {0, 6}, on vertices view 6 sees over the others (mesh of the 2-view MAP)."""
+    settings = RefineSettings(mode=mode, observation=ObservationSettings(size=args.size))
+    posts = []
+    for chosen in ([0], [0, 6]):
+        fused = fusion(mu[chosen], var[chosen])
+        posts.append(refine(decoder, fused.mu, fused.var, world_views(world.views_path(shape_id), chosen), settings))
+    mesh, _ = mesh_of(decoder, posts[1].mu)
+    before, after = (vertex_std(decoder, posts[1].mu, p.cov, mesh.vertices) for p in posts)
+    seen = visible_vertices(mesh, camera_centre(world_views(world.views_path(shape_id), [6])[0].world_to_cam))
+    shrink = before / np.maximum(after, 1e-12)
+    return median_ratio(shrink, seen, ~seen)
+
+
+def calibration(rows, key, scale=None):
+    """Latent calibration error of |error| against the marginal std, over rows (refined: at information scale)."""
+    errors = torch.tensor([e for r in rows for e in r[key]["abs_error"]], dtype=torch.float64)
+    if key == "fused":
+        std = torch.tensor([s for r in rows for s in r[key]["std"]], dtype=torch.float64)
+    else:
+        std = torch.cat(
+            [
+                scaled_posterior_std(
+                    torch.tensor(r[key]["prior_precision"]), torch.tensor(r[key]["information"]), scale
+                )
+                for r in rows
+            ]
+        )
+    return calibration_error(*calibration_curve(errors, std, 20))
+
+
+def summarise(path):
+    """Tables of docs/refinement.md from the rows: IoU / ceiling, CD, std ratios, calibration at the fitted s."""
+    rows = [json.loads(line) for line in open(path)]
+    val, test = [r for r in rows if r["split"] == "val"], [r for r in rows if r["split"] == "test"]
+    for mode in ("masks", "depth"):
+        fit = [r for r in val if r[mode]["information"] is not None]
+        scale, before, after = fit_information_scale(
+            [torch.tensor(r[mode]["abs_error"]) for r in fit],
+            [torch.tensor(r[mode]["prior_precision"]) for r in fit],
+            [torch.tensor(r[mode]["information"]) for r in fit],
+        )
+        print(f"{mode}: information scale s = {scale:.4g} (val CE {before:.3f} at s = 1 -> {after:.3f})")
+        for n in VIEWS:
+            sel = [r for r in test if r["views"] == n]
+            ratio = lambda key: np.mean([r[key]["iou"] / r["own"]["iou"] for r in sel])  # noqa: E731
+            line = {
+                "views": n,
+                "shapes": len(sel),
+                "iou/ceil fused": ratio("fused"),
+                f"iou/ceil {mode}": ratio(mode),
+                "cd fused": np.mean([r["fused"]["cd"] for r in sel]),
+                f"cd {mode}": np.mean([r[mode]["cd"] for r in sel]),
+                "cd falls on": f"{sum(r[mode]['cd'] < r['fused']['cd'] for r in sel)}/{len(sel)}",
+                "CE prior": calibration(sel, "fused"),
+                "CE s=1": calibration(sel, mode, 1.0),
+                "CE fitted s": calibration(sel, mode, scale),
+                "fallbacks": sum(r[mode]["fallback"] is not None for r in sel),
+                "seconds": np.mean([r[mode]["seconds"] for r in sel]),
+            }
+            if n == 1:
+                line["hidden/visible (median over shapes)"] = np.median(
+                    [r[mode]["std_hidden_over_visible"] for r in sel]
+                )
+                line["shrink seen/unseen (median)"] = np.median([r[mode]["shrink_seen_over_unseen"] for r in sel])
+            print({k: round(v, 3) if isinstance(v, float) else v for k, v in line.items()})
+
+
+def main():
+    parser = argparse.ArgumentParser()
+    parser.add_argument("run")
+    parser.add_argument("out")
+    parser.add_argument("--val", type=int, default=5)
+    parser.add_argument("--test", type=int, default=6)
+    parser.add_argument("--size", type=int, default=24)
+    parser.add_argument("--summary", action="store_true", help="print the tables from OUT.jsonl and stop")
+    args = parser.parse_args()
+    if args.summary:
+        return summarise(args.out)
+    torch.set_num_threads(1)
+    predictor = load_predictor(args.run, temperature=True)
+    fusion = default_fusion(predictor)
+    world = WorldIndex.load(predictor.world)
+    decoder_dir = trained_decoder(load_checkpoint(predictor.checkpoint), predictor.checkpoint, predictor.run_dir)
+    for split, count in (("val", args.val), ("test", args.test)):
+        codes = load_codes(f"{decoder_dir}/codes_{split}.pt")
+        for shape_id in world.shape_ids(split)[:count]:
+            for row in shape_rows(args, predictor, fusion, world, codes, shape_id, with_vertices=split == "test"):
+                row.update(split=split, fusion=type(fusion).__name__)
+                with open(args.out, "a") as f:
+                    f.write(json.dumps(row) + "\n")
+                print(
+                    split,
+                    shape_id,
+                    row["views"],
+                    {k: round(row[k]["iou"], 3) for k in ("own", "fused", "masks", "depth")},
+                    flush=True,
+                )
 
 
 if __name__ == "__main__":
-    main(*sys.argv[1:])
+    main()

@@ -28,7 +28,9 @@ def test_the_information_scale_of_errors_drawn_with_a_known_scale_is_recovered()
 def test_scaled_std_is_the_prior_std_at_zero_and_shrinks_with_the_scale():
     precision = torch.diag(torch.tensor([4.0, 1.0]))
     information = torch.tensor([[10.0, 0.0], [0.0, 0.0]])
-    assert torch.allclose(scaled_posterior_std(precision, information, 0.0), torch.tensor([0.5, 1.0], dtype=torch.float64))
+    assert torch.allclose(
+        scaled_posterior_std(precision, information, 0.0), torch.tensor([0.5, 1.0], dtype=torch.float64)
+    )
     assert scaled_posterior_std(precision, information, 1.0)[0] == pytest.approx(1 / math.sqrt(14))
     assert scaled_posterior_std(precision, information, 1.0)[1] == pytest.approx(1.0)  # an unseen dimension
 

@@ -41,7 +41,7 @@ def fit_information_scale(
     n_levels: int = 20,
     grid: tuple[float, ...] = SCALE_GRID,
 ) -> tuple[float, float, float]:
-    """(s, latent calibration error at s = 1, at s): s in grid minimising the calibration error, ties to the larger s."""
+    """(s, latent calibration error at s = 1, at s): the s in grid with the least calibration error (ties: larger s)."""
     if not errors or not (len(errors) == len(prior_precisions) == len(informations)):
         raise ValueError("pass one error, prior precision and information per refined shape (at least one)")
     abs_error = torch.cat([e.double().abs().reshape(-1) for e in errors])

@@ -7,13 +7,17 @@ and depths with use_depth) with per-row weights W = 1 / sigma^2:
 
 Each step solves (H + lambda diag H) dz = -g with the Gauss-Newton H = Sigma^-1 + J^T W J and
 g = Sigma^-1 (z - mu) + J^T W r; a step that does not lower E is retried with a larger lambda.
-Depth rows are Huber-weighted (weight min(1, delta / |r|)): a trace that reaches the back leg where
-the view saw the front one must not drag the code. Two guards against the local minima a sharp silhouette has: the LM runs at a sequence of silhouette
-sharpnesses (`tau_schedule`, multiples of the observation's tau, widest first: a wide sigmoid gives rows
-to pixels the shape misses by far), and it may start from the lowest-energy of the prior's mean and
-`starts` draws from the prior (the same energy, so the MAP it looks for is unchanged). At the optimum z* the Laplace posterior is
-N(z*, (Sigma^-1 + J^T W J)^-1), a full [D, D] covariance: directions of z that no residual moves
-keep the prior's variance exactly, those a view constrains shrink.
+Depth and free-space rows are Huber-weighted (weight min(1, delta / |r|)): a return that a code puts
+on another part than the view saw must not drag the code.
+
+Two optional guards against the local minima a sharp silhouette has: the LM can run at a sequence of
+silhouette sharpnesses (`tau_schedule`, multiples of the observation's tau, widest first: a wide
+sigmoid gives rows to pixels the shape misses by far), and it can start from the lowest-energy of the
+prior's mean and `starts` draws from the prior (the same energy, so the MAP it looks for is the same).
+
+At the optimum z* the Laplace posterior is N(z*, (Sigma^-1 + s J^T W J)^-1), a full [D, D] covariance
+(s = `information_scale`, 1 unless fitted on val: ushape.recalibration.refine_information): directions
+of z that no residual moves keep the prior's variance exactly, those a view constrains shrink.
 
 No views with a camera, no observed foreground, a non-finite residual, or a code driven past
 `max_mahalanobis` prior standard deviations: the prior is returned unchanged, with `fallback` naming
@@ -54,7 +58,9 @@ class RefineSettings:
     tau_schedule: tuple[float, ...] = (1.0,)
     starts: int = 0  # prior draws scored beside the prior's mean; the LM starts from the lowest energy
     seed: int = 0  # of those draws
-    information_scale: float = 1.0  # s in the Laplace covariance (Sigma^-1 + s J^T W J)^-1, fitted on val (recalibration)
+    information_scale: float = (
+        1.0  # s in the Laplace covariance (Sigma^-1 + s J^T W J)^-1, fitted on val (recalibration)
+    )
     observation: ObservationSettings = field(default_factory=ObservationSettings)
 
 
@@ -153,12 +159,16 @@ def refine(
     precision = prior_precision(var)
     prior_mu = mu.detach().double()
     use_depth = settings.mode == "depth"
-    schedule = [replace(settings.observation, tau=settings.observation.tau * m) for m in settings.tau_schedule or (1.0,)]
+    schedule = [
+        replace(settings.observation, tau=settings.observation.tau * m) for m in settings.tau_schedule or (1.0,)
+    ]
     with frozen(decoder):
         z = best_start(decoder, prior_mu, var, precision, views, settings, schedule[0], use_depth)
         known: dict[str, Any] = {"iterations": 0}
         for obs in schedule:
-            z, res, w, energies, steps = levenberg_marquardt(decoder, prior_mu, z, precision, views, settings, obs, use_depth)
+            z, res, w, energies, steps = levenberg_marquardt(
+                decoder, prior_mu, z, precision, views, settings, obs, use_depth
+            )
             known["iterations"] += steps
             known.setdefault("energy_start", energies[0])
             known["energy_end"] = energies[1]
