@@ -14,7 +14,7 @@ from torch import nn
 from ushape.data.cameras import look_at
 from ushape.data.rendering import pixel_rays
 from ushape.refinement import ObservationSettings, ObservedView, RefineSettings, crop_view, refine, residuals
-from ushape.refinement.observation import view_rays
+from ushape.refinement.observation import ray_ball, view_rays
 
 R0, C = 0.35, torch.tensor([0.1, 0.05, 0.0, 0.0], dtype=torch.float64)
 Z_TRUE = torch.tensor([1.0, -0.6, 0.4, -0.2], dtype=torch.float64)
@@ -248,3 +248,13 @@ def test_free_space_removes_matter_that_neither_the_silhouette_nor_the_returns_s
     assert 0.05 + 0.1 * float(kept.mu[2]) > 0.14
     # Down to what the ray samples resolve (a step of ~0.025 along the segment), from 0.15.
     assert 0.05 + 0.1 * float(removed.mu[2]) < 0.03
+
+
+def test_ray_ball_segments_are_the_chords_of_the_unit_ball():
+    origins = torch.tensor([[0.0, 0.0, -3.0], [0.0, 0.5, -3.0], [0.0, 2.0, -3.0], [0.0, 0.0, 0.0]])
+    directions = torch.tensor([[0.0, 0.0, 2.0], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+    near, far = ray_ball(origins, directions, 1.0)
+    assert torch.allclose(near[:2], torch.tensor([1.0, 3.0 - 0.75**0.5]))
+    assert torch.allclose(far[:2], torch.tensor([2.0, 3.0 + 0.75**0.5]))
+    assert far[2] < near[2]  # a miss
+    assert near[3] == 0.0 and far[3] == pytest.approx(1.0)  # a ray that starts inside

@@ -40,7 +40,7 @@ from torch import Tensor
 from ushape.decoder.folded import fold_code
 from ushape.propagation.depth_implicit import MIN_COSINE, depth_sensitivity
 from ushape.propagation.linearised import sdf_gradients
-from ushape.propagation.sphere_tracing import camera_rays, ray_box, sphere_trace
+from ushape.propagation.sphere_tracing import camera_rays, sphere_trace
 from ushape.refinement.views import ObservedView
 
 PointsSDF = Callable[[Tensor], Tensor]  # points [P, 3] -> sdf [P]
@@ -52,13 +52,13 @@ class ObservationSettings:
     """How views are compared with a code; every field is a knob of conf/refine/*.yaml."""
 
     tau: float = 0.01  # silhouette sharpness, in SDF units (the unit-sphere frame)
-    coarse: int = 32  # ray samples for the minimum SDF ...
+    coarse: int = 24  # ray samples for the minimum SDF (inside the unit ball) ...
     fine: int = 8  # ... and samples around the coarse argmin
     band: float = 7.0  # rows with |m| / tau past this have p (1 - p) < 1e-3: no Jacobian
     size: int = 32  # rays per image side (every stride-th pixel)
     trace_steps: int = 40
     trace_eps: float = 2e-3
-    bound: float = 1.0
+    bound: float = 1.0  # rays are sampled inside the ball of this radius (the trace: inside the cube)
     min_cosine: float = MIN_COSINE
     depth_residual: str = "surface"  # "surface" | "trace" (see the module docstring)
     free_margin: float = 0.03  # free space ends this far (camera z) before each depth return; 0: no free-space rows
@@ -107,6 +107,21 @@ def view_rays(view: ObservedView, settings: ObservationSettings) -> tuple[Tensor
     return origins[pixels], directions[pixels], pixels
 
 
+def ray_ball(
+    origins: Tensor,  # [R, 3]
+    directions: Tensor,  # [R, 3], any length (the parameter t is along it)
+    radius: float,
+) -> tuple[Tensor, Tensor]:
+    """Entry and exit parameters [R] of rays o + t d with the ball |x| <= radius (exit < entry: a miss)."""
+    a = (directions * directions).sum(-1)
+    b = (origins * directions).sum(-1)
+    disc = b * b - a * ((origins * origins).sum(-1) - radius * radius)
+    root = disc.clamp_min(0).sqrt()
+    near = ((-b - root) / a).clamp_min(0.0)
+    far = torch.where(disc > 0, (-b + root) / a, torch.full_like(b, -1.0))
+    return near, far
+
+
 def ray_minimum(
     sdf: PointsSDF,
     origins: Tensor,  # [R, 3]
@@ -114,8 +129,10 @@ def ray_minimum(
     settings: ObservationSettings,
     far_limit: Tensor | None = None,  # [R] the segment ends here (ray parameter), else at the cube's exit
 ) -> tuple[Tensor, Tensor]:
-    """Minimum SDF along each ray's segment inside the cube [R] (+inf for an empty segment) and its point [R, 3]."""
-    near, far = ray_box(origins, directions, settings.bound)
+    """Minimum SDF along each ray's segment inside the ball of radius `bound` [R] (+inf for an empty segment) and its
+    point [R, 3]. The ball, not the decoder's cube: every shape lies within radius 1/1.03 (DeepSDF's frame),
+    and its chords are at most 2 long against the cube's 3.46, so the same samples are 1.7x denser."""
+    near, far = ray_ball(origins, directions, settings.bound)
     if far_limit is not None:
         far = torch.minimum(far, far_limit)
     inside = far > near
