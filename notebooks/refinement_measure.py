@@ -21,8 +21,10 @@ import torch
 import trimesh
 
 from ushape.checkpoints import load_checkpoint
-from ushape.data.cameras import camera_centre
+from ushape.data.augment import load_rgba
+from ushape.data.cameras import camera_centre, project
 from ushape.data.layout import WorldIndex
+from ushape.data.sdf_dataset import sdf_points
 from ushape.decoder.artifacts import load_codes
 from ushape.decoder.query import code_sdf_fn, frozen
 from ushape.encoder.datamodule import view_files
@@ -30,13 +32,15 @@ from ushape.mesh.extraction import extract_mesh
 from ushape.mesh.visibility import median_ratio
 from ushape.metrics.calibration import calibration_curve, calibration_error
 from ushape.metrics.pix3d import pix3d_metrics, reference_from_mesh
+from ushape.propagation import SDF_CLAMP
 from ushape.propagation.linearised import latent_jacobian
 from ushape.recalibration.refine_information import fit_information_scale, scaled_posterior_std
 from ushape.reconstruction.calibrated_fusion import default_fusion
 from ushape.reconstruction.predictor import load_predictor, trained_decoder
 from ushape.reconstruction.visibility import hidden_over_visible, visible_vertices
-from ushape.refinement import ObservationSettings, RefineSettings, refine, world_views
-from ushape.refinement.posterior import prior_precision
+from ushape.refinement import ObservationSettings, RefineSettings, crop_view, refine, world_views
+from ushape.refinement.observation import residuals
+from ushape.refinement.posterior import prior_precision, row_weights
 
 VIEWS = {1: [0], 3: [0, 4, 8], 10: list(range(10))}
 
@@ -68,6 +72,7 @@ def shape_rows(args, predictor, fusion, world, codes, shape_id, with_vertices):
     truth = codes.lookup(shape_id)
     reference = reference_from_mesh(trimesh.load(world.mesh_path(shape_id), process=False))
     rows = []
+    points, sdf_true = sdf_points(world, shape_id, 256)
     own, _ = scores(decoder, truth, reference)
     for n, chosen in VIEWS.items():
         fused = fusion(mu[chosen], var[chosen])
@@ -85,13 +90,35 @@ def shape_rows(args, predictor, fusion, world, codes, shape_id, with_vertices):
             s["abs_error"] = (post.mu - truth).abs().tolist()
             s["information"] = post.information.tolist() if post.information is not None else None
             s["prior_precision"] = prior_precision(fused.var).tolist()
+            s["sdf"] = sdf_rows(decoder, post.mu, points, sdf_true)
+            precision = prior_precision(fused.var)
+            s["energy_map"] = energy_parts(decoder, post.mu, fused.mu, precision, views, settings)
+            s["energy_own_code"] = energy_parts(decoder, truth, fused.mu, precision, views, settings)
             if with_vertices and n == 1:
                 std = vertex_std(decoder, post.mu, post.cov, mesh.vertices)
                 s.update(hidden_over_visible(mesh, std, views[0].world_to_cam))
                 s["shrink_seen_over_unseen"] = shrink_ratio(args, decoder, fusion, mu, var, world, shape_id, mode)
+                s["cut_over_full"] = cut_away_std(args, predictor, fusion, world, shape_id, mode, post, truth)
             row[mode] = s
         rows.append(row)
     return rows
+
+
+def energy_parts(decoder, z, prior_mu, precision, views, settings):
+    """(prior, data) halves of the refinement's energy at code z: is the MAP below the own code's energy?"""
+    with frozen(decoder):
+        res = residuals(decoder, z.float(), views, settings.observation, settings.mode == "depth", jacobian=False)
+    dz = (z - prior_mu).double()
+    data = 0.5 * (row_weights(res, settings) * res.r.double().square()).sum()
+    return round(float(0.5 * dz @ precision.double() @ dz), 2), round(float(data), 2)
+
+
+def sdf_rows(decoder, code, points, sdf_true):
+    """|SDF error| [P] at ground-truth samples (clamped as evaluation clamps) and dSDF/dz [P, D] at the code,
+    so the summary can propagate any posterior covariance: std = sqrt(diag(G cov G^T))."""
+    sdf, g = latent_jacobian(decoder, code, points)
+    error = (sdf.clamp(-SDF_CLAMP, SDF_CLAMP) - sdf_true.clamp(-SDF_CLAMP, SDF_CLAMP)).abs()
+    return {"abs_error": error.tolist(), "jacobian": g.tolist()}
 
 
 def shrink_ratio(args, decoder, fusion, mu, var, world, shape_id, mode):
@@ -125,6 +152,25 @@ def calibration(rows, key, scale=None):
     return calibration_error(*calibration_curve(errors, std, 20))
 
 
+def sdf_calibration(rows, key, scale):
+    """SDF calibration error of the refined posteriors (linearised, full covariance at information scale s)."""
+    errors, stds = [], []
+    for r in rows:
+        cov = torch.linalg.inv(
+            torch.tensor(r[key]["prior_precision"], dtype=torch.float64)
+            + scale * torch.tensor(r[key]["information"], dtype=torch.float64)
+        )
+        g = torch.tensor(r[key]["sdf"]["jacobian"], dtype=torch.float64)
+        stds.append(((g @ cov) * g).sum(-1).clamp_min(0).sqrt())
+        errors.append(torch.tensor(r[key]["sdf"]["abs_error"], dtype=torch.float64))
+    return calibration_error(*calibration_curve(torch.cat(errors), torch.cat(stds), 20))
+
+
+def below(record):
+    """Whether the MAP's energy is below the shape's own code's: the optimiser is then not what limits it."""
+    return sum(record["energy_map"]) < sum(record["energy_own_code"])
+
+
 def summarise(path):
     """Tables of docs/refinement.md from the rows: IoU / ceiling, CD, std ratios, calibration at the fitted s."""
     rows = [json.loads(line) for line in open(path)]
@@ -151,15 +197,38 @@ def summarise(path):
                 "CE prior": calibration(sel, "fused"),
                 "CE s=1": calibration(sel, mode, 1.0),
                 "CE fitted s": calibration(sel, mode, scale),
+                "SDF CE s=1": sdf_calibration(sel, mode, 1.0),
+                "SDF CE fitted s": sdf_calibration(sel, mode, scale),
                 "fallbacks": sum(r[mode]["fallback"] is not None for r in sel),
                 "seconds": np.mean([r[mode]["seconds"] for r in sel]),
+                "E(MAP) < E(own code)": f"{sum(below(r[mode]) for r in sel)}/{len(sel)}",
             }
             if n == 1:
                 line["hidden/visible (median over shapes)"] = np.median(
                     [r[mode]["std_hidden_over_visible"] for r in sel]
                 )
                 line["shrink seen/unseen (median)"] = np.median([r[mode]["shrink_seen_over_unseen"] for r in sel])
+                line["cut-away std crop/full (median)"] = np.median([r[mode]["cut_over_full"] for r in sel])
             print({k: round(v, 3) if isinstance(v, float) else v for k, v in line.items()})
+
+
+def cut_away_std(args, predictor, fusion, world, shape_id, mode, full, truth, keep=0.55):
+    """View 0 cropped to its top `keep` (a photo cut off at the seat): median std, on the own code's mesh
+    vertices that fall in the cut-away part, of the refined posterior from the crop over that from the full view."""
+    decoder = predictor.decoder
+    view = world_views(world.views_path(shape_id), [0])[0]
+    h, w = view.image_hw
+    box = (0, 0, int(round(keep * h)), w)
+    rgba = load_rgba(view_files(world.root, shape_id)[0])
+    mu, var = predictor.encode(predictor.prepare(rgba[:, : box[2]])[None])
+    fused = fusion(mu, var)
+    settings = RefineSettings(mode=mode, observation=ObservationSettings(size=args.size))
+    cut = refine(decoder, fused.mu, fused.var, [crop_view(view, box, (box[2], w))], settings)
+    mesh, _ = mesh_of(decoder, truth)
+    uv, _ = project(np.asarray(mesh.vertices), view.K, view.world_to_cam)
+    away = uv[:, 1] >= box[2]
+    stds = [vertex_std(decoder, p.mu, p.cov, mesh.vertices) for p in (cut, full)]
+    return float(np.median(stds[0][away]) / np.median(stds[1][away])) if away.any() else None
 
 
 def main():
