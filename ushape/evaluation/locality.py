@@ -35,7 +35,7 @@ from PIL import Image
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from ushape.data.augment import CROP_RATIO, crop_box, view_seed
+from ushape.data.augment import corrupted_box, view_seed
 from ushape.data.cameras import camera_centre, project
 from ushape.data.layout import WorldIndex
 from ushape.evaluation.protocols import EncoderSpec
@@ -165,13 +165,7 @@ def locality_records(
         for key in keys[:views_per_shape]:
             with Image.open(world.image_path(key.shape_id, key.view)) as image:  # reads the header only
                 width, height = image.size
-            box = crop_box(
-                height,
-                width,
-                min_scale,
-                CROP_RATIO,
-                torch.Generator().manual_seed(view_seed(seed, key.shape_id, key.view)),
-            )
+            box = corrupted_box(height, width, min_scale, view_seed(seed, key.shape_id, key.view))
             parts = split_points(mesh, points, Ks[key.view], w2cs[key.view], box)
             (mu_c, var_c), (mu_x, var_x) = clean.select([key]), cropped.select([key])
             clean_stats = point_stats(decoder, mu_c[0], var_c[0], points)
