@@ -186,3 +186,31 @@ def test_views_without_cameras_fall_back_and_are_counted(sphere_codes, tmp_path,
     assert {r["shape_id"] for r in fell} == {"test_1"} and fell[0]["fallback"] == "no view has a camera"
     assert "Ours + refine (depth), single view(s) at min_scale 1: 8 of 16 reconstructions fell back" in caplog.text
     shutil.rmtree(world.root)
+
+
+class Halved(ReconstructionMethod):
+    """Every fused Gaussian's covariance halved and made full: its latent error / variance doubles."""
+
+    name, label = "halved", "halved"
+
+    def after_fusion(self, context, fused, keys, min_scale):
+        var = fused.var if fused.var.ndim == 2 else torch.diag(fused.var)
+        return Estimate(fused.mu, 0.5 * var)
+
+
+def test_table_v_scores_a_method_on_every_fused_subset(sphere_world, sphere_codes, tmp_path):
+    import json
+
+    record = {"temperature": 1.0, "shared_error": {"var": [0.1] * 3, "view_scale": 1.0, "n_shapes": 2}}
+    (tmp_path / "temperature.json").write_text(json.dumps(record))
+    result = _evaluate(sphere_world, sphere_codes, tmp_path, None, [Halved(), Same()], ("view_calibration",))
+    rows = {(r["encoder"], r["fusion"], r["n_views"]): r for r in result["view_calibration"]}
+    assert not any(encoder == "es+same" for encoder, _, _ in rows)  # no step after fusion: the plain rows say it
+    for (encoder, rule, n), plain in [(k, r) for k, r in rows.items() if k[0] == "es"]:
+        halved = rows[("es+halved", rule, n)]
+        assert halved["latent_error_over_var"] == pytest.approx(2 * plain["latent_error_over_var"], rel=1e-5)
+        assert halved["sdf_error_over_var"] == pytest.approx(2 * plain["sdf_error_over_var"], rel=1e-3)
+
+
+class Same(ReconstructionMethod):
+    name, label = "same", "same codes"
