@@ -46,7 +46,8 @@ def _evaluate(world, codes, tmp_path, cache, methods, protocols=PROTOCOLS, **ove
 def refined(sphere_world, sphere_codes, tmp_path_factory):
     """Every reconstructing protocol for a fake ES encoder, plainly and refined on masks, with a cache."""
     tmp = tmp_path_factory.mktemp("refined")
-    result = _evaluate(sphere_world, sphere_codes, tmp, tmp / "cache", [R.RefineMethod("masks", **FAST)])
+    method = R.RefineMethod("masks", **FAST)
+    result = _evaluate(sphere_world, sphere_codes, tmp, tmp / "cache", [method], corrupted_scales=(0.1,))
     return result, tmp
 
 
@@ -163,7 +164,8 @@ def test_refinements_are_cached_and_reused(refined, sphere_world, sphere_codes, 
         raise AssertionError("refined again although cached")
 
     monkeypatch.setattr(R, "refine", no_refinement)
-    again = _evaluate(sphere_world, sphere_codes, tmp, tmp / "cache", [R.RefineMethod("masks", **FAST)])
+    method = R.RefineMethod("masks", **FAST)
+    again = _evaluate(sphere_world, sphere_codes, tmp, tmp / "cache", [method], corrupted_scales=(0.1,))
     mine = [r for r in result["records"] if r["encoder"] == "es+refine_masks"]
     assert [r for r in again["records"] if r["encoder"] == "es+refine_masks"] == mine
     assert sorted((tmp / "cache" / R.CACHE_FOLDER).glob("*.pt")) == files
