@@ -27,7 +27,7 @@ from ushape.evaluation.views import Estimate, encode_views
 from ushape.fusion.rules import fuse_bayesian
 
 PROTOCOLS = ("single_view", "multi_view", "corrupted", "uncertainty", "locality")
-FAST = dict(size=6, iterations=2)  # 6 x 6 rays, 2 steps: seconds for the whole world
+FAST = dict(size=4, iterations=2)  # 4 x 4 rays, 2 steps: seconds for the whole world
 
 
 def _evaluate(world, codes, tmp_path, cache, methods, protocols=PROTOCOLS, **overrides):
@@ -65,10 +65,21 @@ def test_refined_rows_stand_beside_the_plain_ones_in_every_table(refined):
     assert refined_locality and refined_locality[0]["n_views"] == 16
 
 
+def test_table_d_propagates_the_refined_covariance_to_depth(sphere_world, sphere_codes, tmp_path):
+    method = R.RefineMethod("masks", **FAST)
+    result = _evaluate(sphere_world, sphere_codes, tmp_path, None, [method], ("depth",), depth_views=1)
+    rows = {(r["encoder"], r["method"]): r for r in result["depth"]}
+    for kind in ("implicit", "mc M=10"):
+        plain, refined = rows[("es", kind)], rows[("es+refine_masks", kind)]
+        assert refined["n_views"] == plain["n_views"] == 2 and refined["mean_std"] != plain["mean_std"]
+    (table,) = [t for t in build_tables(result) if t.name.startswith("Table D")]
+    assert "Ours + refine (masks)" in {row[0] for row in table.rows}
+
+
 def test_refined_views_keep_the_prior_where_no_view_looks(sphere_world, sphere_codes, tmp_path):
     settings = tiny_settings()
     run = make_run(sphere_world, sphere_codes, None, "es", tmp_path, settings)
-    run.method = R.RefineMethod("masks", **FAST)
+    run.method = R.RefineMethod("masks", size=8, iterations=3)
     context = EvalContext(run, settings, None, {})
     prior, views = context.encode(0.1), context.views(0.1, 1)
     assert views.var.shape == (2, 3, 3) and views.fallbacks == (None, None)  # full covariances, none fell back
