@@ -1,10 +1,11 @@
 """The refinement as an evaluation method: its rows in every table, on the evaluation's own crops, once per
 fused instance, cached, with its fallbacks counted; and the method hook's post-fusion step in general.
 
-The ellipsoid world's renders are discs, not the ellipsoid seen by its cameras, so what the refinement
-reaches says nothing here; what it is fed, and where its results go, does. One known answer holds
-anyway: the ellipsoid decoder ignores code dimensions 1 and 2, so no view moves them and the refined
-posterior keeps their prior variance exactly.
+The ellipsoid world's renders are discs, not the ellipsoid seen by its cameras, so on it what the
+refinement reaches says nothing; what it is fed, and where its results go, does. Two known answers:
+the ellipsoid decoder ignores code dimensions 1 and 2, so no view moves them and the refined posterior
+keeps their prior variance exactly; and with the true silhouettes in views.npz, a view refined on its
+evaluation crop recovers the thin ellipsoid's axis.
 """
 
 import logging
@@ -12,13 +13,16 @@ import os
 import shutil
 import warnings
 
+import numpy as np
 import pytest
 import torch
-from eval_world import build_sphere_world, make_run, tiny_settings
+import trimesh
+from eval_world import IMAGE, RADII, build_sphere_world, make_run, tiny_settings
 
 import ushape.evaluation.refine_method as R
 import ushape.evaluation.views as V
 from ushape.data.augment import CROP_RATIO, crop_box, view_seed
+from ushape.data.rendering import render_mesh
 from ushape.evaluation.context import EvalContext
 from ushape.evaluation.methods import ReconstructionMethod, fallback_lines
 from ushape.evaluation.report import build_tables
@@ -63,6 +67,38 @@ def test_refined_rows_stand_beside_the_plain_ones_in_every_table(refined):
         assert any(str(row[0]).startswith("Ours + refine (masks)") for row in tables[name].rows), name
     refined_locality = [r for r in result["locality"] if r["encoder"] == "es+refine_masks"]
     assert refined_locality and refined_locality[0]["n_views"] == 16
+
+
+@pytest.fixture(scope="module")
+def silhouette_world(tmp_path_factory):
+    """The ellipsoid world with each view's true mask and depth in views.npz (rendered from its camera)."""
+    world = build_sphere_world(tmp_path_factory.mktemp("silhouettes"))
+    for shape_id in RADII:
+        mesh = trimesh.load(world.mesh_path(shape_id), force="mesh", process=False)
+        with np.load(world.views_path(shape_id)) as cameras:
+            K, w2c = cameras["K"], cameras["world_to_cam"]
+        renders = [render_mesh(mesh, K[v], w2c[v], IMAGE) for v in range(len(K))]
+        masks, depth = np.stack([r["mask"] for r in renders]), np.stack([r["depth"] for r in renders])
+        np.savez(world.views_path(shape_id), K=K, world_to_cam=w2c, masks=masks, depth=depth)
+    return world
+
+
+@pytest.mark.parametrize("mode", ["masks", "depth"])
+def test_cropped_views_pull_the_code_to_the_shape_they_show(silhouette_world, sphere_codes, tmp_path, mode):
+    """With true silhouettes, refining each 0.1-cropped view of the thin ellipsoid (a = 0.3) on its crop brings
+    a back towards 0.3 from the fake encoder's cropped guess: the crop's camera and pixels agree. (The crop's
+    mask with the whole image's K drives a to 0.21 or 0.54 instead.) Views whose guess saturates the decoder's
+    tanh (a = 0.797) carry no gradient and are left out."""
+    settings = tiny_settings()
+    run = make_run(silhouette_world, sphere_codes, None, "es", tmp_path, settings)
+    run.method = R.RefineMethod(mode, size=16, iterations=10)
+    context = EvalContext(run, settings, None, {})
+    prior, refined = context.encode(0.1), context.views(0.1)
+    a_prior, a_refined = (0.5 + 0.3 * torch.tanh(e.mu[:, 0]) for e in (prior, refined))
+    thin = torch.tensor([k.shape_id == "test_0" for k in prior.keys]) & (a_prior < 0.79)
+    error_prior, error_refined = (a_prior - 0.3).abs()[thin], (a_refined - 0.3).abs()[thin]
+    assert int(thin.sum()) >= 6 and refined.fallbacks == (None,) * 16
+    assert (error_refined < error_prior).all() and error_refined.mean() < 0.5 * error_prior.mean()
 
 
 def test_table_d_propagates_the_refined_covariance_to_depth(sphere_world, sphere_codes, tmp_path):
