@@ -78,7 +78,9 @@ def evaluation_view(where: EvaluationView) -> ObservedView | None:
 
 class RefineMethod(ReconstructionMethod):
     """Refinement on the views (conf/method/refine_masks.yaml, refine_depth.yaml): mode masks or depth, size
-    rays per image side, the residuals' stds and the iterations (see ushape.refinement.RefineSettings)."""
+    rays per image side, the residuals' stds, the iterations and the information scale s of the Laplace
+    covariance (Sigma^-1 + s J^T W J)^-1 (1: every ray counted as independent; a value fitted on val with
+    ushape.recalibration.refine_information) (see ushape.refinement.RefineSettings)."""
 
     def __init__(
         self,
@@ -87,12 +89,18 @@ class RefineMethod(ReconstructionMethod):
         sigma_mask: float = 0.5,
         sigma_depth: float = 0.02,
         iterations: int = 15,
+        information_scale: float = 1.0,
         name: str | None = None,
         label: str | None = None,
     ) -> None:
         observation = ObservationSettings(size=size)
         self.settings = RefineSettings(
-            mode=mode, sigma_mask=sigma_mask, sigma_depth=sigma_depth, iterations=iterations, observation=observation
+            mode=mode,
+            sigma_mask=sigma_mask,
+            sigma_depth=sigma_depth,
+            iterations=iterations,
+            information_scale=information_scale,
+            observation=observation,
         )
         self.name = name or f"refine_{mode}"
         self.label = label or f"refine ({mode})"
