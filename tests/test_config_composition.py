@@ -8,8 +8,10 @@ from hydra.utils import get_object
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
-# Groups whose options are chosen on the command line (hydra's own group is composed separately).
-GROUPS = sorted(p.name for p in CONF.iterdir() if p.is_dir() and p.name != "hydra")
+# Groups whose options are chosen on the command line (hydra's own group is composed separately; eval.py
+# reads conf/method/ by name, as `methods=[refine_masks, ...]`: a list, not one option of a group).
+NAMED_LISTS = {"method"}
+GROUPS = sorted(p.name for p in CONF.iterdir() if p.is_dir() and p.name not in {"hydra", *NAMED_LISTS})
 
 
 def _options(group: str) -> list[str]:
@@ -90,3 +92,23 @@ def test_slurm_launcher_composes():
 def test_fusion_k_and_crop_are_sweepable_keys():
     cfg = _compose(["fusion=bayesian_k", "fusion.k=2", "crop.min_scale=0.1"])
     assert cfg.fusion.k == 2 and cfg.crop.min_scale == 0.1
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in (CONF / "method").glob("*.yaml")))
+def test_every_method_file_builds_a_method(name):
+    from ushape.evaluation.methods import ReconstructionMethod, build_methods
+
+    (method,) = build_methods([name])
+    assert isinstance(method, ReconstructionMethod) and method.name == name
+
+
+def test_eval_config_takes_methods_by_name_and_by_target():
+    from ushape.evaluation.methods import build_methods
+
+    target = "{_target_: ushape.evaluation.refine_method.RefineMethod, mode: depth, size: 8, name: coarse}"
+    cfg = _compose([f"methods=[refine_masks,{target}]"], config="eval")
+    masks, coarse = build_methods(list(cfg.methods))
+    assert (masks.label, masks.settings.observation.size) == ("refine (masks)", 32)
+    assert (coarse.name, coarse.settings.mode, coarse.settings.observation.size) == ("coarse", "depth", 8)
+    with pytest.raises(ValueError, match="refine_masks"):
+        build_methods(["refine_mask"])

@@ -73,3 +73,32 @@ def test_eval_explains_a_missing_run(tmp_path, capsys):
     with pytest.raises(SystemExit) as stop:  # bad input: one line, exit 2
         run_eval(cfg)
     assert stop.value.code == 2 and "do not exist" in capsys.readouterr().err
+
+
+def test_eval_adds_the_refined_rows_of_a_method_config(sphere_world, tmp_path, monkeypatch):
+    monkeypatch.setenv("USHAPE_ROOT", str(tmp_path))
+    run_dir = fit_sphere_run(sphere_world, tmp_path)
+    method = "{_target_: ushape.evaluation.refine_method.RefineMethod, mode: masks, size: 4, iterations: 2}"
+    cfg = _compose(
+        [
+            f"runs=[{run_dir}]",
+            f"cache_dir={tmp_path / 'cache'}",
+            f"out_dir={tmp_path / 'eval'}",
+            "tensorboard=false",
+            "protocols=[single_view]",
+            "protocol.resolution=16",
+            "protocol.n_points=64",
+            "protocol.single_view_views=1",
+            "protocol.group_size=2",
+            "protocol.max_shapes=1",
+            f"methods=[{method}]",
+        ]
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run_eval(cfg)
+    tables = (tmp_path / "eval" / "tables.md").read_text()
+    assert "| Ours-NLL + refine (masks) |" in tables
+    rows = {r["label"]: r for r in json.loads((tmp_path / "eval" / "eval_row.json").read_text())}
+    assert rows["Ours-NLL + refine (masks)"]["n_instances"] == rows["Ours-NLL"]["n_instances"] == 4
+    assert list((tmp_path / "cache" / "refine").glob("*.pt"))

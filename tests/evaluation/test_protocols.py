@@ -7,7 +7,16 @@ import pytest
 import torch
 from eval_world import LATENT, RADII, FakePredictor, make_run, tiny_settings
 
-from ushape.data.augment import CompositeBackground, corrupted_view, load_rgba, resize, view_seed
+from ushape.data.augment import (
+    CROP_RATIO,
+    CompositeBackground,
+    corrupted_box,
+    corrupted_view,
+    crop_box,
+    load_rgba,
+    resize,
+    view_seed,
+)
 from ushape.evaluation import protocols as P
 from ushape.evaluation.runner import evaluate_all, evaluate_encoder
 from ushape.evaluation.views import ViewKey, encode_views
@@ -68,6 +77,17 @@ def test_crops_are_deterministic_and_full_scale_keeps_the_image(sphere_world):
     assert not torch.equal(a, corrupted_view(rgba, 32, 0.1, seed=8))
     whole = CompositeBackground("gt_mask", 1.0)(resize(rgba, 32))
     assert torch.equal(corrupted_view(rgba, 32, 1.0, seed=7), whole)
+
+
+@pytest.mark.parametrize("mask_mode", ["gt_mask", "none"])
+def test_corrupted_box_is_the_crop_corrupted_view_takes(sphere_world, mask_mode):
+    rgba = load_rgba(sphere_world.image_path("test_1", 3))
+    for min_scale, seed in ((0.1, 7), (0.01, 3), (1.0, 5)):
+        top, left, h, w = corrupted_box(rgba.shape[-2], rgba.shape[-1], min_scale, seed)
+        generator = torch.Generator().manual_seed(seed)
+        crop_box(rgba.shape[-2], rgba.shape[-1], min_scale, CROP_RATIO, generator)  # the box's draws come first
+        expected = CompositeBackground(mask_mode, 1.0)(resize(rgba[:, top : top + h, left : left + w], 32), generator)
+        assert torch.equal(corrupted_view(rgba, 32, min_scale, seed, mask_mode), expected)
 
 
 def test_fusion_methods_of_a_deterministic_encoder_are_averaging_only():

@@ -285,5 +285,14 @@ def corrupted_view(
 
     min_scale = 1 keeps the whole image (the uncorrupted protocol). Deterministic in `seed`.
     """
-    transform = Compose([RandomResizedCrop(image_size, min_scale), CompositeBackground(mask_mode, background_value)])
-    return transform(rgba, torch.Generator().manual_seed(seed))
+    generator = torch.Generator().manual_seed(seed)
+    top, left, h, w = crop_box(rgba.shape[-2], rgba.shape[-1], min_scale, CROP_RATIO, generator)
+    image = resize(rgba[..., top : top + h, left : left + w], image_size)
+    return CompositeBackground(mask_mode, background_value)(image, generator)
+
+
+def corrupted_box(height: int, width: int, min_scale: float, seed: int) -> tuple[int, int, int, int]:
+    """The crop (top, left, h, w) `corrupted_view(image, ..., min_scale, seed)` takes of a height x width image:
+    its generator's first draws, so whoever needs a view's evaluation crop (which parts it removed, a
+    refinement on what it shows) gets that very box."""
+    return crop_box(height, width, min_scale, CROP_RATIO, torch.Generator().manual_seed(seed))

@@ -11,6 +11,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from ushape.builders import build
 from ushape.errors import bad_input_exit
+from ushape.evaluation.methods import build_methods
 from ushape.evaluation.plugin import load_protocols
 from ushape.evaluation.report import write_results
 from ushape.evaluation.runner import evaluate_runs
@@ -119,7 +120,7 @@ def _evaluate(cfg: DictConfig) -> float | None:
         showcase_dir=out_dir if settings.protocols else None,
         temperature=bool(cfg.get("temperature", False)),
         protocols=protocols,
-        methods=[instantiate(node) for node in cfg.get("methods") or []],
+        methods=build_methods(list(cfg.get("methods") or [])),
     )
     paths = write_results(result, out_dir, tensorboard=cfg.tensorboard)
     if "tables" in paths:

@@ -43,7 +43,7 @@ class DepthTarget:
     """One view to score: its latent Gaussian and the true depth along its camera's pixel rays."""
 
     mu: Tensor  # [D]
-    var: Tensor  # [D]
+    var: Tensor  # [D], or [D, D] (a full covariance)
     depth: np.ndarray  # [H, W] true camera-z depth, 0 where the ray misses
     K: np.ndarray  # [3, 3] for an image of depth's size
     world_to_cam: np.ndarray  # [4, 4]

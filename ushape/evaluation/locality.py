@@ -19,14 +19,15 @@ clean image and once for the cropped one, and compared as ratios of medians:
   fused_hidden/visible    median std after Bayesian fusion of all the shape's views / single view, on the
                           view's hidden and visible points (fusion should shrink the hidden part's std more)
 Ground-truth points rather than the reconstruction's vertices keep the point sets the same for both
-inputs, so the two std fields are compared on the same parts.
+inputs, so the two std fields are compared on the same parts. A Gaussian with a full covariance [D, D]
+(a reconstruction method's, refined on the view) is propagated as it is.
 """
 
 from __future__ import annotations
 
 import zlib
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import torch
@@ -35,11 +36,11 @@ from PIL import Image
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from ushape.data.augment import CROP_RATIO, crop_box, view_seed
+from ushape.data.augment import corrupted_box, view_seed
 from ushape.data.cameras import camera_centre, project
 from ushape.data.layout import WorldIndex
 from ushape.evaluation.protocols import EncoderSpec
-from ushape.evaluation.views import Encodings, ViewKey
+from ushape.evaluation.views import Encodings, Estimate, ViewKey
 from ushape.fusion.rules import fuse_bayesian
 from ushape.mesh.visibility import median_ratio, visible_points
 from ushape.propagation import propagate
@@ -96,7 +97,8 @@ def split_points(
 
 
 def point_stats(decoder, mu: Tensor, var: Tensor, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """At ground-truth surface points [P, 3]: the error |f(x, mu)| [P] and the linearised SDF std [P]."""
+    """At ground-truth surface points [P, 3]: the error |f(x, mu)| [P] and the linearised SDF std [P] of the
+    Gaussian (mu [D], var [D] or [D, D])."""
     xyz = torch.as_tensor(points, dtype=torch.float32)
     mean, variance = propagate(decoder, mu.float(), var.float(), xyz, "linearised")
     return mean.abs().numpy(), variance.clamp_min(0).sqrt().numpy()
@@ -147,8 +149,12 @@ def locality_records(
     seed: int = 0,
     n_points: int = 2048,
     views_per_shape: int | None = None,
+    fuse: Callable[[str], Estimate] | None = None,
 ) -> list[dict]:
-    """One record per test view (of a probabilistic encoder): where its uncertainty sits (module docstring)."""
+    """One record per test view (of a probabilistic encoder): where its uncertainty sits (module docstring).
+
+    fuse: shape id -> the Gaussian of all its views fused (default: the Bayesian rule on `clean`'s views of it).
+    """
     if not spec.probabilistic:
         return []
     if clean.keys != cropped.keys:
@@ -160,18 +166,12 @@ def locality_records(
     for shape_id, keys in tqdm(by_shape.items(), desc=f"{spec.name} locality", leave=False):
         mesh, points = surface_points(world, shape_id, n_points, seed)
         Ks, w2cs = render_cameras(world, shape_id)
-        fused = fuse_bayesian(*clean.select(keys))
+        fused = fuse(shape_id) if fuse is not None else fuse_bayesian(*clean.select(keys))
         _, std_fused = point_stats(decoder, fused.mu, fused.var, points)
         for key in keys[:views_per_shape]:
             with Image.open(world.image_path(key.shape_id, key.view)) as image:  # reads the header only
                 width, height = image.size
-            box = crop_box(
-                height,
-                width,
-                min_scale,
-                CROP_RATIO,
-                torch.Generator().manual_seed(view_seed(seed, key.shape_id, key.view)),
-            )
+            box = corrupted_box(height, width, min_scale, view_seed(seed, key.shape_id, key.view))
             parts = split_points(mesh, points, Ks[key.view], w2cs[key.view], box)
             (mu_c, var_c), (mu_x, var_x) = clean.select([key]), cropped.select([key])
             clean_stats = point_stats(decoder, mu_c[0], var_c[0], points)

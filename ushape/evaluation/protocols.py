@@ -20,10 +20,12 @@ from typing import Callable, Iterable, Sequence
 from tqdm.auto import tqdm
 
 from ushape.decoder.artifacts import CodeTable
-from ushape.evaluation.views import Encodings, ViewKey
+from ushape.evaluation.views import Encodings, Estimate, ViewKey
 from ushape.fusion.rules import FusedCode, fuse_average, fuse_bayesian, fuse_bayesian_k
 
 FuseFn = Callable[..., FusedCode]
+# A reconstruction method's step after fusion (methods.ReconstructionMethod.after_fusion, bound to a run and crop).
+AfterFusion = Callable[[Estimate, Sequence[ViewKey]], Estimate]
 SINGLE_VIEW = "single-view"
 GROUP_SIZE = 10
 
@@ -86,11 +88,14 @@ def fusion_methods(probabilistic: bool, ks: Iterable[int] = ()) -> dict[str, Fus
 def single_view_records(
     spec: EncoderSpec, encodings: Encodings, reconstructor, min_scale: float, emd: bool = False
 ) -> list[dict]:
-    """One record per view: its own code reconstructed and scored."""
+    """One record per view: its own code reconstructed and scored (with `fallback` where the encodings say)."""
     records = []
     for i, key in enumerate(tqdm(encodings.keys, desc=f"{spec.name} single view {min_scale:g}", leave=False)):
         scores = reconstructor.scores(encodings.mu[i], key.shape_id, emd=emd)
-        records.append(_record(spec, "single", min_scale, SINGLE_VIEW, 1, key.shape_id, f"{key.view}", scores))
+        record = _record(spec, "single", min_scale, SINGLE_VIEW, 1, key.shape_id, f"{key.view}", scores)
+        if encodings.fallbacks is not None:
+            record["fallback"] = encodings.fallbacks[i]
+        records.append(record)
     return records
 
 
@@ -118,10 +123,13 @@ def multi_view_records(
     reconstructor,
     min_scale: float,
     quiet: bool = True,
+    after: AfterFusion | None = None,
 ) -> list[dict]:
     """One record per (instance, fusion method): the fused code reconstructed and scored.
 
     quiet silences the fusion's "K > views" warning: the tables' Bayesian-K rows expect it for short instances.
+    after: a reconstruction method's step from each fused Gaussian to the one scored (a refinement on the
+    instance's views), applied once per instance and rule; its records carry `fallback`.
     """
     records = []
     for group in tqdm(groups, desc=f"{spec.name} multi view {min_scale:g}", leave=False):
@@ -133,8 +141,13 @@ def multi_view_records(
                 warnings.simplefilter("ignore")
             fused = {name: fuse(mu, var) for name, fuse in methods.items()}
         for name, code in fused.items():
-            scores = reconstructor.scores(code.mu, shape_id)
-            records.append(_record(spec, "multi", min_scale, name, len(group), shape_id, item, scores))
+            estimate = Estimate(code.mu, code.var)
+            estimate = estimate if after is None else after(estimate, group)
+            scores = reconstructor.scores(estimate.mu, shape_id)
+            record = _record(spec, "multi", min_scale, name, len(group), shape_id, item, scores)
+            if after is not None:
+                record["fallback"] = estimate.fallback
+            records.append(record)
     return records
 
 
@@ -160,7 +173,8 @@ CELL_KEYS = ("encoder", "label", "protocol", "min_scale", "method", "views")
 def summarise(records: Iterable[dict]) -> list[dict]:
     """Mean iou / cd / emd per table cell (encoder, protocol, min_scale, method, views), with the count n.
 
-    CD and EMD average over the non-empty reconstructions only; `empty` counts the others (IoU 0).
+    CD and EMD average over the non-empty reconstructions only; `empty` counts the others (IoU 0);
+    `fallbacks`, in a cell of a method that may fall back (its records carry `fallback`), counts those that did.
     """
     cells: dict[tuple, list[dict]] = {}
     for record in records:
@@ -175,5 +189,7 @@ def summarise(records: Iterable[dict]) -> list[dict]:
             if any(metric in r for r in items):
                 row[metric] = sum(values) / len(values) if values else math.nan
         row["empty"] = sum(1 for r in items if math.isnan(r.get("cd", 0.0)))
+        if any("fallback" in r for r in items):
+            row["fallbacks"] = sum(1 for r in items if r.get("fallback"))
         rows.append(row)
     return rows

@@ -26,7 +26,7 @@ from ushape.decoder.precision import resolve_precision
 from ushape.evaluation import protocols as P
 from ushape.evaluation.context import EvalContext
 from ushape.evaluation.encoders import EncoderRun, load_encoder, mask_variants
-from ushape.evaluation.methods import ReconstructionMethod, method_variants
+from ushape.evaluation.methods import ReconstructionMethod, fallback_lines, method_variants
 from ushape.evaluation.plugin import Protocol, load_protocols
 from ushape.evaluation.settings import RESULTS, ROW_KEYS, Settings
 from ushape.evaluation.showcase import save_showcase
@@ -64,11 +64,12 @@ def evaluate_encoder(
 def setting_row(context: EvalContext, fuse: Callable, method: str, min_scale: float) -> dict:
     """One sweep row: single-view and fused multi-view IoU at the configured fusion rule and crop."""
     run, settings, groups = context.run, context.settings, context.groups
-    encodings = context.encode(min_scale)
-    single = P.summarise(
-        P.single_view_records(run.spec, encodings.first_views(settings.single_view_views), run.reconstructor, min_scale)
-    )[0]
-    fused = P.multi_view_records(run.spec, encodings, groups, {method: fuse}, run.reconstructor, min_scale, quiet=False)
+    views = context.views(min_scale, settings.single_view_views)
+    single = P.summarise(P.single_view_records(run.spec, views, run.reconstructor, min_scale))[0]
+    after = context.after_fusion(min_scale)
+    fused = P.multi_view_records(
+        run.spec, context.encode(min_scale), groups, {method: fuse}, run.reconstructor, min_scale, False, after
+    )
     if not fused:
         log.warning(
             "no multi-view instance in %s (every shape has fewer than %d views): the row's multi-view cells are empty",
@@ -162,6 +163,8 @@ def evaluate_all(
     for protocol in protocols:
         result["records"] += protocol.after_all(runs, settings, cache_dir)
     result["summary"] = P.summarise(result["records"])
+    for line in fallback_lines(result["summary"]):
+        log.info(line)
     result["settings"] = {k: (list(v) if isinstance(v, (tuple, range)) else v) for k, v in vars(settings).items()}
     extra = [vars(table) for protocol in protocols for table in protocol.tables(result)]
     if extra:

@@ -4,6 +4,11 @@ For each encoder, its predicted latent Gaussians and the equal-variance baseline
 same means) are scored against the stage-1 codes in latent space, and propagated through the
 decoder to the ground-truth SDF sample points of each shape (Monte Carlo, and linearised as a
 second method) and scored there per SDF value, split into All / Surface / Non-Surface.
+
+A method's full covariance [D, D] (a refined posterior) is propagated to SDF space as it is. The latent
+scores read its diagonal, explicitly (`Encodings.marginal_var`): the per-dimension calibration and the
+covariance trace need only the marginals, but the latent ES and NLL then treat the dimensions as
+independent, so for a full covariance they score its marginals, not the joint Gaussian.
 """
 
 from __future__ import annotations
@@ -29,8 +34,9 @@ PROPAGATION_METHODS = ("mc", "linearised")
 
 
 def _variants(spec: EncoderSpec, var: Tensor) -> dict[str, Tensor]:
-    """Predicted variance and the equal-variance baseline; a deterministic encoder only has the latter."""
-    equal = torch.full_like(var, EQUAL_VARIANCE)
+    """Predicted variance ([N, D] or [N, D, D]) and the equal-variance baseline [N, D]; a deterministic encoder
+    only has the latter."""
+    equal = torch.full(var.shape[:2], EQUAL_VARIANCE, dtype=var.dtype)
     return {"predicted": var, "equal": equal} if spec.probabilistic else {"equal": equal}
 
 
@@ -40,10 +46,11 @@ def code_targets(encodings: Encodings, codes: CodeTable) -> Tensor:
 
 
 def latent_rows(spec: EncoderSpec, encodings: Encodings, codes: CodeTable, n_levels: int = 20) -> tuple[list, dict]:
-    """Latent-space ES / NLL / L2 / calibration error per variance variant, and their calibration curves."""
+    """Latent-space ES / NLL / L2 / calibration error per variance variant, and their calibration curves
+    (of each dimension's marginal: a full covariance's diagonal, see the module docstring)."""
     target = code_targets(encodings, codes)
     rows, curves = [], {}
-    for variant, var in _variants(spec, encodings.var).items():
+    for variant, var in _variants(spec, encodings.marginal_var).items():
         report = latent_report(encodings.mu, var, target, n_levels=n_levels)
         rows.append(
             {"encoder": spec.name, "label": spec.label, "variance": variant, "space": "latent", "method": "-", **report}
@@ -56,14 +63,15 @@ def error_tracking_row(spec: EncoderSpec, encodings: Encodings, codes: CodeTable
     """Does the predicted variance grow with the error? Spearman rank correlation, over the views, of the
     covariance trace against the squared latent error, at one crop setting (NaN for a constant variance)."""
     target = code_targets(encodings, codes)
-    rank_corr = variance_tracks_error(encodings.var, encodings.mu, target) if spec.probabilistic else float("nan")
+    var = encodings.marginal_var  # the trace is the diagonal's sum, full covariance or not
+    rank_corr = variance_tracks_error(var, encodings.mu, target) if spec.probabilistic else float("nan")
     return {
         "encoder": spec.name,
         "label": spec.label,
         "min_scale": float(min_scale),
         "n": len(encodings.keys),
         "l2": float(latent_l2(encodings.mu, target)),
-        "var_trace": float(encodings.var.sum(-1).mean()),
+        "var_trace": float(var.sum(-1).mean()),
         "rank_corr": float(rank_corr),
     }
 
@@ -73,7 +81,8 @@ def pooled_error_tracking_row(
 ) -> dict:
     """`error_tracking_row` over the clean and the cropped views together: whether the variance ranks a
     view's error both across shapes and across how much of the object the view shows."""
-    both = Encodings(clean.keys + cropped.keys, torch.cat([clean.mu, cropped.mu]), torch.cat([clean.var, cropped.var]))
+    var = torch.cat([clean.marginal_var, cropped.marginal_var])  # all the row reads of a full covariance
+    both = Encodings(clean.keys + cropped.keys, torch.cat([clean.mu, cropped.mu]), var)
     return {**error_tracking_row(spec, both, codes, min_scale), "pooled": True}
 
 

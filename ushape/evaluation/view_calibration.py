@@ -6,6 +6,10 @@ the decoder, per ground-truth SDF sample): the calibration error (area between t
 and Y = X, supplement S2.2), the mean squared error over the mean variance ("error / trace": 1 when
 calibrated), and the coverage of the 90 % interval. Bayesian fusion treats the views as independent;
 their errors are mostly shared, so its variance shrinks with n far faster than its error.
+
+A reconstruction method's step after fusion (a refinement on the fused views) is applied to every fused
+subset: its full covariance goes into the SDF propagation as it is; the latent scores, per dimension,
+read its diagonal (each dimension's marginal, exact for them).
 """
 
 from __future__ import annotations
@@ -15,11 +19,15 @@ from typing import Callable, Mapping, Sequence
 import torch
 from torch import Tensor
 
+from ushape.evaluation.methods import log_fallbacks, stack_variances
+from ushape.evaluation.views import Estimate
 from ushape.fusion.rules import FusedCode
 from ushape.metrics.calibration import calibration_curve, calibration_error, two_sided_quantile
 from ushape.propagation import SDF_CLAMP, propagate_to_sdf
 
 FusionRule = Callable[[Tensor, Tensor], FusedCode]  # (mu [V, D], var [V, D]) -> fused Gaussian
+# A method's step after fusion for one shape: (fused Gaussian, the shape's view indices fused) -> the one scored.
+AfterSubset = Callable[[Estimate, list[int]], Estimate]
 VIEW_COUNTS = (1, 3, 10)
 COVERAGE = 0.9
 
@@ -55,17 +63,28 @@ def fused_errors(
     var: Tensor,  # [V, D]
     code: Tensor,  # [D]
     subsets: Tensor,  # [R, n]
+    after: AfterSubset | None = None,
 ) -> tuple[Tensor, Tensor, Tensor]:
-    """(fused mu [R, D], fused var [R, D], |fused mu - code| [R, D]) of one shape's view subsets, fused as
-    one batch [R, n, D] (every rule of ushape.fusion takes a batch)."""
+    """(fused mu [R, D], fused var [R, D] (or [R, D, D] after a method's step), |fused mu - code| [R, D]) of
+    one shape's view subsets, fused as one batch [R, n, D] (every rule of ushape.fusion takes a batch),
+    then each passed through `after` where given."""
     fused = rule(mu[subsets], var[subsets])
-    return fused.mu, fused.var, (fused.mu - code).abs()
+    if after is None:
+        return fused.mu, fused.var, (fused.mu - code).abs()
+    steps = [after(Estimate(m, v), row.tolist()) for m, v, row in zip(fused.mu, fused.var, subsets)]
+    fused_mu = torch.stack([step.mu for step in steps])
+    return fused_mu, stack_variances([step.var for step in steps]), (fused_mu - code).abs()
+
+
+def marginal(var: Tensor) -> Tensor:  # [R, D] or [R, D, D] -> [R, D]
+    """Each dimension's own variance: a diagonal as it is, a full covariance's diagonal."""
+    return var if var.ndim == 2 else torch.diagonal(var, dim1=-2, dim2=-1)
 
 
 def sdf_errors(
     decoder,
     fused_mu: Tensor,  # [R, D]
-    fused_var: Tensor,  # [R, D]
+    fused_var: Tensor,  # [R, D] or [R, D, D]
     points: Tensor,  # [P, 3]
     sdf_true: Tensor,  # [P]
     sdf_temperature: float | None = None,
@@ -92,6 +111,7 @@ def calibration_across_views(
     sdf: Sequence[tuple[Tensor, Tensor]] | None = None,  # per shape: (points [P, 3], sdf [P])
     decoder=None,
     sdf_temperature: float | None = None,
+    after: Sequence[AfterSubset] | None = None,  # per shape: a method's step after fusion
 ) -> list[dict]:
     """One row per (rule, n views): latent (and with `sdf`, SDF) calibration scores over every shape.
 
@@ -107,8 +127,9 @@ def calibration_across_views(
             latent_err, latent_std, sdf_err, sdf_std = [], [], [], []
             for i in usable:
                 mu, var, code = views[i]
-                fused_mu, fused_var, error = fused_errors(rule, mu, var, code, subsets[i])
-                latent_err.append(error.reshape(-1)), latent_std.append(fused_var.sqrt().reshape(-1))
+                step = None if after is None else after[i]
+                fused_mu, fused_var, error = fused_errors(rule, mu, var, code, subsets[i], step)
+                latent_err.append(error.reshape(-1)), latent_std.append(marginal(fused_var).sqrt().reshape(-1))
                 if sdf is not None:
                     e, s = sdf_errors(decoder, fused_mu, fused_var, *sdf[i], sdf_temperature)
                     sdf_err.append(e.reshape(-1)), sdf_std.append(s.reshape(-1))
@@ -125,7 +146,8 @@ def calibration_across_views(
 
 
 def plot_calibration_across_views(rows: Sequence[dict], target: float = 0.05):
-    """A Figure: calibration error against views fused, one line per rule; latent and (if scored) SDF panels."""
+    """A Figure: calibration error against views fused, one line per rule (per row label and rule where rows of
+    several labels are given); latent and (if scored) SDF panels."""
     from matplotlib.figure import Figure
 
     if not rows:
@@ -134,10 +156,14 @@ def plot_calibration_across_views(rows: Sequence[dict], target: float = 0.05):
     fig = Figure(figsize=(4.2 * len(spaces), 3.6))
     for j, space in enumerate(spaces):
         ax = fig.add_subplot(1, len(spaces), j + 1)
-        for name in dict.fromkeys(r["fusion"] for r in rows):
-            mine = [r for r in rows if r["fusion"] == name]
+        several = len({r.get("label") for r in rows}) > 1  # an encoder and its methods: one line each
+        for label, name in dict.fromkeys((r.get("label"), r["fusion"]) for r in rows):
+            mine = [r for r in rows if (r.get("label"), r["fusion"]) == (label, name)]
             ax.plot(
-                [r["n_views"] for r in mine], [r[f"{space}_calibration_error"] for r in mine], marker="o", label=name
+                [r["n_views"] for r in mine],
+                [r[f"{space}_calibration_error"] for r in mine],
+                marker="o",
+                label=f"{label}: {name}" if several else name,
             )
         ax.axhline(target, linestyle="--", color="black", linewidth=1, label=f"target {target}")
         ax.set(xlabel="views fused", ylabel="calibration error", title=f"{space} calibration across views")
@@ -177,11 +203,12 @@ def evaluation_rules(checkpoint, k: int) -> tuple[dict[str, FusionRule], float |
     return rules, *read_temperatures(checkpoint)
 
 
-def view_calibration_protocol(run, settings, encodings, codes, draws: int = 6) -> list[dict]:
+def view_calibration_protocol(run, settings, encodings, codes, draws: int = 6, after=None) -> list[dict]:
     """Table V's rows for one evaluated run: every rule at 1, 3 and 10 fused test views, latent and SDF.
 
     All rules fuse the temperature-scaled view variances (the shared error was fitted on them): the
-    stored T is applied here where the evaluation did not apply it already.
+    stored T is applied here where the evaluation did not apply it already. after: a method's step after
+    fusion, (fused Gaussian, view keys) -> the Gaussian scored (None: the fused one).
     """
     from ushape.data.sdf_dataset import sdf_points
 
@@ -191,14 +218,32 @@ def view_calibration_protocol(run, settings, encodings, codes, draws: int = 6) -
     scale = latent_t if latent_t is not None and run.predictor.temperature is None else 1.0
     sdf_t = run.predictor.sdf_temperature if run.predictor.sdf_temperature is not None else sdf_t
     ids = list(dict.fromkeys(key.shape_id for key in encodings.keys))
-    views, sdf = [], []
+    fallbacks: list[str | None] = []
+
+    def counted(fused, keys):
+        estimate = after(fused, keys)
+        fallbacks.append(estimate.fallback)
+        return estimate
+
+    views, sdf, steps = [], [], []
     for shape_id in ids:
         rows = [i for i, key in enumerate(encodings.keys) if key.shape_id == shape_id]
         views.append((encodings.mu[rows], encodings.var[rows] * scale, codes.lookup(shape_id)))
         sdf.append(sdf_points(run.world, shape_id, settings.sdf_points))
+        keys = [encodings.keys[i] for i in rows]
+        steps.append(lambda fused, subset, keys=keys: counted(fused, [keys[j] for j in subset]))
+    decoder = run.predictor.decoder
     rows = calibration_across_views(
-        rules, views, draws=draws, seed=settings.seed, sdf=sdf, decoder=run.predictor.decoder, sdf_temperature=sdf_t
+        rules,
+        views,
+        draws=draws,
+        seed=settings.seed,
+        sdf=sdf,
+        decoder=decoder,
+        sdf_temperature=sdf_t,
+        after=None if after is None else steps,
     )
+    log_fallbacks(run.spec.name, fallbacks, "Table V fused view subsets")
     return [{"encoder": run.spec.name, "label": run.spec.label, **row} for row in rows]
 
 

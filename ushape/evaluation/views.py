@@ -52,15 +52,33 @@ def load_view(path: Path, mask_input: str = "gt_mask") -> Tensor:
 
 
 @dataclass(frozen=True)
+class Estimate:
+    """One reconstructed Gaussian: mu [D], var [D] (diagonal) or [D, D] (full), and why the method that made
+    it fell back to its input (None: it did not)."""
+
+    mu: Tensor
+    var: Tensor
+    fallback: str | None = None
+
+
+@dataclass(frozen=True)
 class Encodings:
-    """Per-view latent Gaussians: keys[i] has mu[i], var[i] (var = 1 for an l2 encoder)."""
+    """Per-view latent Gaussians: keys[i] has mu[i], var[i] (var = 1 for an l2 encoder). var is [N, D], or
+    [N, D, D] for a method that gives full covariances; fallbacks[i], where a method set it, says why that
+    method fell back to the view's encoding (None: it did not)."""
 
     keys: list[ViewKey]
     mu: Tensor  # [N, D]
-    var: Tensor  # [N, D]
+    var: Tensor  # [N, D] or [N, D, D]
+    fallbacks: tuple[str | None, ...] | None = None
+
+    @property
+    def marginal_var(self) -> Tensor:  # [N, D]
+        """Each dimension's own variance: var itself, or a full covariance's diagonal."""
+        return self.var if self.var.ndim == 2 else torch.diagonal(self.var, dim1=-2, dim2=-1)
 
     def select(self, keys: Sequence[ViewKey]) -> tuple[Tensor, Tensor]:
-        """(mu [K, D], var [K, D]) of the given views, in their order."""
+        """(mu [K, D], var [K, D] or [K, D, D]) of the given views, in their order."""
         index = {k: i for i, k in enumerate(self.keys)}
         missing = [k for k in keys if k not in index]
         if missing:
@@ -72,9 +90,10 @@ class Encodings:
         """Only each shape's first n_views views (None: all)."""
         if n_views is None:
             return self
-        keys = [k for k in self.keys if k.view < n_views]
-        mu, var = self.select(keys)
-        return Encodings(keys, mu, var)
+        rows = [i for i, k in enumerate(self.keys) if k.view < n_views]
+        fallbacks = None if self.fallbacks is None else tuple(self.fallbacks[i] for i in rows)
+        index = torch.tensor(rows, dtype=torch.long)
+        return Encodings([self.keys[i] for i in rows], self.mu[index], self.var[index], fallbacks)
 
 
 def encoder_tag(predictor) -> str:

@@ -1,4 +1,7 @@
-"""The depth protocol (Table D): depth std against the true depth error along each test view's own camera."""
+"""The depth protocol (Table D): depth std against the true depth error along each test view's own camera.
+
+A reconstruction method is scored on the Gaussian it reconstructs each view with (`context.views`; a full
+covariance goes through the depth propagation as it is)."""
 
 from __future__ import annotations
 
@@ -30,7 +33,7 @@ class Depth(Protocol):
             return Output(curves={"depth": {}})
         rows, curves = depth_calibration_rows(
             run.spec,
-            context.encode(1.0),
+            context.views(1.0, self.views),
             run.predictor.decoder,
             run.world,
             self.size,

@@ -1,4 +1,8 @@
-"""The locality protocol (Table L): does the SDF std sit on the parts a view hides or crops away?"""
+"""The locality protocol (Table L): does the SDF std sit on the parts a view hides or crops away?
+
+A reconstruction method is scored on the Gaussians it reconstructs each view with, clean and cropped
+(`context.views`), and on the shape's views fused by the Bayesian rule then passed through its step
+(`context.fused`); full covariances are propagated as they are."""
 
 from __future__ import annotations
 
@@ -6,6 +10,7 @@ import logging
 
 from ushape.evaluation.locality import has_cameras, locality_records, summarise_locality
 from ushape.evaluation.plugin import Output, Protocol
+from ushape.fusion.rules import fuse_bayesian
 
 log = logging.getLogger(__name__)
 
@@ -29,15 +34,20 @@ class Locality(Protocol):
             )
             return Output()
         scale = self.scale
+
+        def fused(shape_id: str):
+            return context.fused([k for k in run.keys if k.shape_id == shape_id], 1.0, fuse_bayesian)
+
         views = locality_records(
             run.spec,
-            context.encode(1.0),
-            context.encode(scale),
+            context.views(1.0, self.views),
+            context.views(scale, self.views),
             run.predictor.decoder,
             run.world,
             scale,
             settings.seed,
             self.points,
             self.views,
+            fuse=fused,
         )
         return Output(rows={"locality_views": views, "locality": summarise_locality(views)})

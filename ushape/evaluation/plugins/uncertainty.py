@@ -1,6 +1,10 @@
 """The uncertainty protocol (Tables S1 and U): latent- and SDF-space scores of the predicted Gaussians with
 the equal-variance baseline, and whether the variance tracks the error, clean and (with the corrupted
-protocol) at the Easy/Mid/Hard crops, beside the same views' single-view IoU where it was measured."""
+protocol) at the Easy/Mid/Hard crops, beside the same views' single-view IoU where it was measured.
+
+A reconstruction method's Gaussians are those it reconstructs each view with (`context.views`): a full
+covariance goes through the SDF propagation as it is; the latent scores read its diagonal (see
+uncertainty_protocol.latent_rows)."""
 
 from __future__ import annotations
 
@@ -30,11 +34,11 @@ class Uncertainty(Protocol):
 
     def run(self, context) -> Output:
         run, settings = context.run, context.settings
-        encodings, codes = context.encode(1.0), context.split_codes()
+        encodings, codes = context.views(1.0), context.split_codes()
         rows, latent_curves = latent_rows(run.spec, encodings, codes, settings.calibration_levels)
         sdf, sdf_curves = sdf_rows(
             run.spec,
-            encodings,
+            context.views(1.0, self.sdf_views),
             run.predictor.decoder,
             run.world,
             self.sdf_points,
@@ -55,7 +59,7 @@ class Uncertainty(Protocol):
     @staticmethod
     def error_tracking(context, codes) -> list[dict]:
         scales = [1.0] + (list(context.settings.single_view_scales) if context.asked("corrupted") else [])
-        spec, clean = context.spec, context.encode(1.0)
-        tracking = [error_tracking_row(spec, context.encode(s), codes, s) for s in dict.fromkeys(scales)]
-        tracking += [pooled_error_tracking_row(spec, clean, context.encode(s), codes, s) for s in scales if s != 1.0]
+        spec, clean = context.spec, context.views(1.0)
+        tracking = [error_tracking_row(spec, context.views(s), codes, s) for s in dict.fromkeys(scales)]
+        tracking += [pooled_error_tracking_row(spec, clean, context.views(s), codes, s) for s in scales if s != 1.0]
         return with_shape_accuracy(tracking, context.records())

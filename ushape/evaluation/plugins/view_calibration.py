@@ -1,5 +1,8 @@
 """The calibration-across-views protocol (Table V, `eval.py protocols=[view_calibration]`): every fusion rule's
-latent and SDF calibration at 1, 3 and 10 fused test views (see evaluation.view_calibration)."""
+latent and SDF calibration at 1, 3 and 10 fused test views (see evaluation.view_calibration).
+
+A reconstruction method with a step after fusion (a refinement) has every fused subset passed through it;
+one without scores the encoder's own fusion again, so its rows are the plain run's and are left out."""
 
 from __future__ import annotations
 
@@ -16,10 +19,11 @@ class ViewCalibration(Protocol):
         self.draws = draws
 
     def run(self, context) -> Output:
-        if context.run.method is not None:  # the rules fuse the encoder's own views: the plain run's rows say it
+        after = context.after_fusion(1.0)
+        if context.run.method is not None and after is None:  # the plain run's rows say it
             return Output()
         rows = view_calibration_protocol(
-            context.run, context.settings, context.encode(1.0), context.split_codes(), self.draws
+            context.run, context.settings, context.encode(1.0), context.split_codes(), self.draws, after
         )
         return Output(rows={"view_calibration": rows})
 

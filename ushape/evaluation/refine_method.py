@@ -1,0 +1,133 @@
+"""The refinement as a reconstruction method of the evaluation: rows "<encoder> + refine (masks|depth)".
+
+Its `after_fusion` step refines a Gaussian, one view's or an instance's fused by a table's rule, on the
+views it came from (`ushape.refinement.refine`: Levenberg-Marquardt on their masks, or masks and depth,
+and the full-covariance Laplace posterior). Each view is the one the encoder was shown: the test render's
+camera, mask (views.npz, else the image's alpha) and depth, cropped to the very box the evaluation cropped
+the image to at that min scale (`augment.corrupted_box`, seeded by `view_seed`), at the box's own pixels,
+so the camera changes only by the crop's shift (`crop_view`). A render without cameras gives no view, and
+the refinement falls back to the prior (counted, see methods).
+
+Refinement costs seconds per view, so each result is cached under the evaluation's cache folder, keyed by
+the encoder (checkpoint and temperature), the decoder, the world, the settings, the views, the crop and
+the prior refined (which tells the fusion rules apart), and written atomically.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import torch
+from PIL import Image
+
+from ushape import atomic
+from ushape.data.augment import corrupted_box, load_rgba, view_seed
+from ushape.data.layout import WorldIndex
+from ushape.evaluation.methods import ReconstructionMethod
+from ushape.evaluation.views import Estimate, ViewKey, encoder_tag
+from ushape.refinement import ObservationSettings, ObservedView, RefineSettings, crop_view, refine, world_views
+
+CACHE_FOLDER = "refine"
+
+
+@dataclass(frozen=True)
+class EvaluationView:
+    """Where a test view's pixels come from and how the evaluation cropped it."""
+
+    world: WorldIndex
+    key: ViewKey
+    min_scale: float
+    seed: int
+
+
+def stored_view(world: WorldIndex, key: ViewKey) -> ObservedView | None:
+    """A test render's camera, mask and depth (views.npz; the mask from the image's alpha where views.npz
+    has none); None where the render has no camera (a photo)."""
+    path = world.views_path(key.shape_id)
+    if not path.is_file():
+        return None
+    with np.load(path) as data:
+        has_masks = "masks" in data.files
+        K, w2c = data["K"][key.view].astype(np.float64), data["world_to_cam"][key.view].astype(np.float64)
+        depth = torch.as_tensor(data["depth"][key.view]).float() if "depth" in data.files else None
+    if has_masks:
+        return world_views(path, [key.view])[0]
+    alpha = load_rgba(world.image_path(key.shape_id, key.view))[3]
+    return ObservedView(K, w2c, (alpha > 0.5).float(), depth)
+
+
+def evaluation_view(where: EvaluationView) -> ObservedView | None:
+    """The view as the encoder was shown it: cropped to the evaluation's box for (seed, view, min scale)."""
+    view = stored_view(where.world, where.key)
+    if view is None:
+        return None
+    with Image.open(where.world.image_path(where.key.shape_id, where.key.view)) as image:  # the header only
+        width, height = image.size
+    if view.image_hw != (height, width):
+        raise ValueError(
+            f"{where.world.views_path(where.key.shape_id)}: view {where.key.view}'s mask is {view.image_hw} "
+            f"but its image is {(height, width)}; the crop box is in the image's pixels: rebuild the world"
+        )
+    box = corrupted_box(height, width, where.min_scale, view_seed(where.seed, where.key.shape_id, where.key.view))
+    return crop_view(view, box, (box[2], box[3]))
+
+
+class RefineMethod(ReconstructionMethod):
+    """Refinement on the views (conf/method/refine_masks.yaml, refine_depth.yaml): mode masks or depth, size
+    rays per image side, the residuals' stds, the iterations and the information scale s of the Laplace
+    covariance (Sigma^-1 + s J^T W J)^-1 (1: every ray counted as independent; a value fitted on val with
+    ushape.recalibration.refine_information) (see ushape.refinement.RefineSettings)."""
+
+    def __init__(
+        self,
+        mode: str = "masks",
+        size: int = 32,
+        sigma_mask: float = 0.5,
+        sigma_depth: float = 0.02,
+        iterations: int = 15,
+        information_scale: float = 1.0,
+        name: str | None = None,
+        label: str | None = None,
+    ) -> None:
+        observation = ObservationSettings(size=size)
+        self.settings = RefineSettings(
+            mode=mode,
+            sigma_mask=sigma_mask,
+            sigma_depth=sigma_depth,
+            iterations=iterations,
+            information_scale=information_scale,
+            observation=observation,
+        )
+        self.name = name or f"refine_{mode}"
+        self.label = label or f"refine ({mode})"
+
+    def after_fusion(self, context, fused: Estimate, keys: Sequence[ViewKey], min_scale: float) -> Estimate:
+        """`fused` refined on the views `keys` as the evaluation cropped them at min_scale (cached)."""
+        run, seed = context.run, context.settings.seed
+        cache = self.cache_file(context, fused, keys, min_scale)
+        if cache is not None and cache.is_file():
+            blob = torch.load(cache, map_location="cpu", weights_only=False)
+            return Estimate(blob["mu"], blob["cov"], blob["fallback"])
+        views = [evaluation_view(EvaluationView(run.world, key, min_scale, seed)) for key in keys]
+        posterior = refine(run.predictor.decoder, fused.mu, fused.var, views, self.settings)
+        estimate = Estimate(posterior.mu, posterior.cov, posterior.fallback)
+        if cache is not None:
+            atomic.torch_save({"mu": estimate.mu, "cov": estimate.var, "fallback": estimate.fallback}, cache)
+        return estimate
+
+    def cache_file(self, context, fused: Estimate, keys: Sequence[ViewKey], min_scale: float) -> Path | None:
+        """Where this refinement's result is kept (None: the evaluation keeps no cache)."""
+        if context.cache_dir is None:
+            return None
+        run = context.run
+        prior = hashlib.sha1(fused.mu.float().numpy().tobytes() + fused.var.float().numpy().tobytes()).hexdigest()
+        views = "|".join(f"{k.shape_id}/{k.view}" for k in keys)
+        text = (
+            f"{encoder_tag(run.predictor)}|{run.reconstructor.decoder_tag}|{Path(run.world.root).resolve()}|"
+            f"{self.settings}|{views}|{min_scale:g}|{context.settings.seed}|{prior}"
+        )
+        return Path(context.cache_dir) / CACHE_FOLDER / f"{hashlib.sha1(text.encode()).hexdigest()[:24]}.pt"
