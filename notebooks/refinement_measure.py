@@ -201,9 +201,7 @@ def summarise(path):
                 f"cd {mode}": np.mean([r[mode]["cd"] for r in sel]),
                 "cd falls on": f"{sum(r[mode]['cd'] < r['fused']['cd'] for r in sel)}/{len(sel)}",
                 "CE prior": calibration(sel, "fused"),
-                "CE bayes": calibration([r for r in sel if "bayes" in r], "bayes")
-                if any("bayes" in r for r in sel)
-                else None,
+                "CE bayes": calibration(paper, "bayes") if paper else None,
                 "CE s=1": calibration(sel, mode, 1.0),
                 "CE fitted s": calibration(sel, mode, scale),
                 "SDF CE s=1": sdf_calibration(sel, mode, 1.0),
