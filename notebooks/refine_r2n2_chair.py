@@ -6,8 +6,10 @@ Builds the ShapeNet world of the one shared chair that has R2N2 renders (its Sha
 24 PNGs and cameras; masks from alpha), checks that our renderer's silhouette of the mesh through those
 cameras matches the alpha masks, encodes the 24 renders with RUN's encoder, fuses views [0], [0, 8, 16]
 and all 24 with the run's calibrated fusion (Bayes where not fitted), refines each fused code on the
-same views' masks, and scores fused and refined against the mesh by the Pix3D protocol (64^3 meshes).
-Writes OUT/results.json, the 3-view meshes, and the figure.
+same views' masks, and scores fused and refined against the mesh by the Pix3D protocol (64^3 meshes),
+beside the ceiling: the chair's own code under the frozen decoder (latent-optimised on the world's SDF
+samples, cached in OUT). Records each case's energies (prior and mask terms) at the fused, refined and own
+codes. Writes OUT/results.json, the 3-view meshes, and the figure.
 
 The frame: the run's decoder was trained on the synthetic chairs, which face +z; ShapeNet v2 chairs face
 -z. The world's mesh and cameras are turned 180 degrees about y into the decoder's frame
@@ -186,17 +188,17 @@ def figure(path: Path, world: WorldIndex, truth: trimesh.Trimesh, meshes: dict, 
     R = np.eye(4)
     R[:3, :3] = DECODER_FROM_WORLD.T
     images = [plt.imread(world.image_path(CHAIR, v)) for v in shown]
-    panels = [("R2N2 render", None, images)]
+    panels = [("R2N2 render", images)]
     truth_caster = RayCaster(truth)
-    panels.append(("true mesh", None, [render_mesh(truth_caster, k, c, 137)["rgba"] for k, c in zip(K, w2c)]))
+    panels.append(("true mesh", [render_mesh(truth_caster, k, c, 137)["rgba"] for k, c in zip(K, w2c)]))
     for key, title in (("fused", "fused"), ("refined", "refined on 3 masks")):
         caster = RayCaster(meshes[key])
         renders = [render_mesh(caster, k, c @ R, 137)["rgba"] for k, c in zip(K, w2c)]
         r = rows[key]
-        panels.append((f"{title}\nCD {r['cd']:.4f}, IoU {r['iou_reachable']:.2f}", meshes[key], renders))
+        panels.append((f"{title}\nCD {r['cd']:.4f}, IoU {r['iou_reachable']:.2f}", renders))
     fig, axes = plt.subplots(len(panels), len(shown), figsize=(1.9 * len(shown) + 0.9, 1.95 * len(panels)))
     fig.subplots_adjust(left=0.1, right=0.86, top=0.93, bottom=0.02, wspace=0.05, hspace=0.12)
-    for i, (title, _, renders) in enumerate(panels):
+    for i, (title, renders) in enumerate(panels):
         for j, image in enumerate(renders):
             ax = axes[i, j]
             ax.imshow(image)
