@@ -195,6 +195,9 @@ def summarise(path):
             line = {
                 "views": n,
                 "shapes": len(sel),
+                "iou own": np.mean([r["own"]["iou"] for r in sel]),
+                "iou fused": np.mean([r["fused"]["iou"] for r in sel]),
+                f"iou {mode}": np.mean([r[mode]["iou"] for r in sel]),
                 "iou/ceil fused": ratio("fused"),
                 f"iou/ceil {mode}": ratio(mode),
                 "cd fused": np.mean([r["fused"]["cd"] for r in sel]),
@@ -245,6 +248,7 @@ def main():
     parser.add_argument("--val", type=int, default=5)
     parser.add_argument("--test", type=int, default=6)
     parser.add_argument("--size", type=int, default=24)
+    parser.add_argument("--world", help="the world folder, where the run's summary does not name it yet")
     parser.add_argument("--summary", action="store_true", help="print the tables from OUT.jsonl and stop")
     args = parser.parse_args()
     if args.summary:
@@ -252,7 +256,7 @@ def main():
     torch.set_num_threads(1)
     predictor = load_predictor(args.run, temperature=True)
     fusion = default_fusion(predictor)
-    world = WorldIndex.load(predictor.world)
+    world = WorldIndex.load(args.world or predictor.world)
     decoder_dir = trained_decoder(load_checkpoint(predictor.checkpoint), predictor.checkpoint, predictor.run_dir)
     for split, count in (("val", args.val), ("test", args.test)):
         codes = load_codes(f"{decoder_dir}/codes_{split}.pt")
