@@ -154,18 +154,18 @@ def ray_minimum(
     return minimum, points
 
 
-def occupancy_residuals(
+def silhouette_residuals(
     sdf: PointsSDF,
     gradients: PointsGradients | None,  # None: residuals only
-    origins: Tensor,  # [R, 3]
-    directions: Tensor,  # [R, 3]
-    target: Tensor,  # [R] observed occupancy of each ray's segment
+    view: ObservedView,
     settings: ObservationSettings,
     latent_size: int,
-    far_limit: Tensor | None = None,  # [R] see ray_minimum
 ) -> tuple[Tensor, Tensor]:
-    """Predicted minus observed occupancy r [R] of each ray's segment, and dr/dz [R, D] ([0, D] without gradients)."""
-    minimum, points = ray_minimum(sdf, origins, directions, settings, far_limit)
+    """Predicted minus observed occupancy r [R] at the view's observed sub-grid, and dr/dz [R, D] ([0, D] without
+    gradients)."""
+    origins, directions, pixels = view_rays(view, settings)
+    target = view.mask.reshape(-1)[pixels].float()
+    minimum, points = ray_minimum(sdf, origins, directions, settings)
     p = torch.sigmoid(-minimum / settings.tau)
     if gradients is None:
         return p - target, torch.zeros(0, latent_size)
@@ -175,19 +175,6 @@ def occupancy_residuals(
         _, grad_z, _ = gradients(points[near])
         J[near] = (-(p * (1 - p))[near] / settings.tau)[:, None] * grad_z
     return p - target, J
-
-
-def silhouette_residuals(
-    sdf: PointsSDF,
-    gradients: PointsGradients | None,
-    view: ObservedView,
-    settings: ObservationSettings,
-    latent_size: int,
-) -> tuple[Tensor, Tensor]:
-    """Predicted minus observed occupancy r [R] at the view's observed sub-grid, and dr/dz [R, D]."""
-    origins, directions, pixels = view_rays(view, settings)
-    target = view.mask.reshape(-1)[pixels].float()
-    return occupancy_residuals(sdf, gradients, origins, directions, target, settings, latent_size)
 
 
 def free_space_residuals(
