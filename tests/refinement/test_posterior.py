@@ -14,7 +14,8 @@ from torch import nn
 from ushape.data.cameras import look_at
 from ushape.data.rendering import pixel_rays
 from ushape.refinement import ObservationSettings, ObservedView, RefineSettings, crop_view, refine, residuals
-from ushape.refinement.observation import ray_ball, view_rays
+from ushape.refinement.observation import view_rays
+from ushape.refinement.ray_search import ray_ball
 
 R0, C = 0.35, torch.tensor([0.1, 0.05, 0.0, 0.0], dtype=torch.float64)
 Z_TRUE = torch.tensor([1.0, -0.6, 0.4, -0.2], dtype=torch.float64)

@@ -41,9 +41,9 @@ from ushape.decoder.folded import fold_code
 from ushape.propagation.depth_implicit import MIN_COSINE, depth_sensitivity
 from ushape.propagation.linearised import sdf_gradients
 from ushape.propagation.sphere_tracing import camera_rays, sphere_trace
+from ushape.refinement.ray_search import PointsSDF, SDFGrid, ray_minimum, sdf_grid
 from ushape.refinement.views import ObservedView
 
-PointsSDF = Callable[[Tensor], Tensor]  # points [P, 3] -> sdf [P]
 PointsGradients = Callable[[Tensor], tuple[Tensor, Tensor, Tensor]]  # [P, 3] -> (s [P], ds/dz [P, D], ds/dx [P, 3])
 
 
@@ -62,6 +62,21 @@ class ObservationSettings:
     min_cosine: float = MIN_COSINE
     depth_residual: str = "surface"  # "surface" | "trace" (see the module docstring)
     free_margin: float = 0.03  # free space ends this far (camera z) before each depth return; 0: no free-space rows
+    # Coarse ray samples read from an SDF grid of this many nodes per axis (0: from the decoder; ray_search.py) ...
+    grid: int = 33
+    # ... and a ray whose interpolated minimum is band x tau + this past the surface skips the decoder
+    grid_slack: float = 0.05
+
+    def search(self, sdf: PointsSDF) -> SDFGrid | None:
+        """The SDF grid the coarse ray samples read at one code (None: they query the decoder)."""
+        return sdf_grid(sdf, self.grid, self.bound) if self.grid else None
+
+    def minimum(
+        self, sdf: PointsSDF, origins: Tensor, directions: Tensor, far_limit: Tensor | None, grid: SDFGrid | None
+    ) -> tuple[Tensor, Tensor]:
+        """`ray_search.ray_minimum` with these settings: minimum SDF [R] and its point [R, 3]."""
+        margin = self.band * self.tau + self.grid_slack
+        return ray_minimum(sdf, origins, directions, self.coarse, self.fine, self.bound, far_limit, grid, margin)
 
 
 KINDS = ("masks", "depth", "free")  # a row's kind: silhouette, depth return, free space before a return
@@ -107,65 +122,19 @@ def view_rays(view: ObservedView, settings: ObservationSettings) -> tuple[Tensor
     return origins[pixels], directions[pixels], pixels
 
 
-def ray_ball(
-    origins: Tensor,  # [R, 3]
-    directions: Tensor,  # [R, 3], any length (the parameter t is along it)
-    radius: float,
-) -> tuple[Tensor, Tensor]:
-    """Entry and exit parameters [R] of rays o + t d with the ball |x| <= radius (exit < entry: a miss)."""
-    a = (directions * directions).sum(-1)
-    b = (origins * directions).sum(-1)
-    disc = b * b - a * ((origins * origins).sum(-1) - radius * radius)
-    root = disc.clamp_min(0).sqrt()
-    near = ((-b - root) / a).clamp_min(0.0)
-    far = torch.where(disc > 0, (-b + root) / a, torch.full_like(b, -1.0))
-    return near, far
-
-
-def ray_minimum(
-    sdf: PointsSDF,
-    origins: Tensor,  # [R, 3]
-    directions: Tensor,  # [R, 3]
-    settings: ObservationSettings,
-    far_limit: Tensor | None = None,  # [R] the segment ends here (ray parameter), else at the cube's exit
-) -> tuple[Tensor, Tensor]:
-    """Minimum SDF along each ray's segment inside the ball of radius `bound` [R] (+inf for an empty segment) and its
-    point [R, 3]. The ball, not the decoder's cube: every shape lies within radius 1/1.03 (DeepSDF's frame),
-    and its chords are at most 2 long against the cube's 3.46, so the same samples are 1.7x denser."""
-    near, far = ray_ball(origins, directions, settings.bound)
-    if far_limit is not None:
-        far = torch.minimum(far, far_limit)
-    inside = far > near
-    o, d = origins[inside], directions[inside]
-    n, f = near[inside], far[inside]
-    fractions = (torch.arange(settings.coarse) + 0.5) / settings.coarse
-    t = n[:, None] + fractions[None, :] * (f - n)[:, None]  # [R', N]
-    values = sdf((o[:, None, :] + t[..., None] * d[:, None, :]).reshape(-1, 3)).reshape(t.shape)
-    best = t.gather(1, values.argmin(dim=1, keepdim=True))  # [R', 1]
-    step = (f - n)[:, None] / settings.coarse
-    offsets = torch.linspace(-1.0, 1.0, settings.fine)[None, :] * step
-    t = torch.cat([best, (best + offsets).clamp(n[:, None], f[:, None])], dim=1)
-    values = sdf((o[:, None, :] + t[..., None] * d[:, None, :]).reshape(-1, 3)).reshape(t.shape)
-    k = values.argmin(dim=1, keepdim=True)
-    minimum = torch.full((origins.shape[0],), float("inf"))
-    points = origins.clone()
-    minimum[inside] = values.gather(1, k)[:, 0]
-    points[inside] = o + t.gather(1, k) * d
-    return minimum, points
-
-
 def silhouette_residuals(
     sdf: PointsSDF,
     gradients: PointsGradients | None,  # None: residuals only
     view: ObservedView,
     settings: ObservationSettings,
     latent_size: int,
+    grid: SDFGrid | None = None,  # the code's SDF grid for the coarse ray samples (settings.search)
 ) -> tuple[Tensor, Tensor]:
     """Predicted minus observed occupancy r [R] at the view's observed sub-grid, and dr/dz [R, D] ([0, D] without
     gradients)."""
     origins, directions, pixels = view_rays(view, settings)
     target = view.mask.reshape(-1)[pixels].float()
-    minimum, points = ray_minimum(sdf, origins, directions, settings)
+    minimum, points = settings.minimum(sdf, origins, directions, None, grid)
     p = torch.sigmoid(-minimum / settings.tau)
     if gradients is None:
         return p - target, torch.zeros(0, latent_size)
@@ -183,6 +152,7 @@ def free_space_residuals(
     view: ObservedView,
     settings: ObservationSettings,
     latent_size: int,
+    grid: SDFGrid | None = None,  # the code's SDF grid for the coarse ray samples (settings.search)
 ) -> tuple[Tensor, Tensor]:
     """min(m, 0) [R'] of each returning ray's minimum SDF m in front of its return (`free_margin` short of it),
     in SDF units, and dr/dz [R', D]: zero where that segment is empty, whatever the surface's slant."""
@@ -191,7 +161,8 @@ def free_space_residuals(
     origins, directions, pixels = view_rays(view, settings)
     observed = view.depth.reshape(-1)[pixels].float()
     rows = (observed > 0).nonzero().squeeze(1)
-    minimum, points = ray_minimum(sdf, origins[rows], directions[rows], settings, observed[rows] - settings.free_margin)
+    far_limit = observed[rows] - settings.free_margin
+    minimum, points = settings.minimum(sdf, origins[rows], directions[rows], far_limit, grid)
     r = minimum.clamp(max=0.0)  # an empty segment (+inf) has no residual
     if gradients is None:
         return r, torch.zeros(0, latent_size)
@@ -208,6 +179,7 @@ def depth_residuals(
     view: ObservedView,
     settings: ObservationSettings,
     latent_size: int,
+    grid: SDFGrid | None = None,  # the code's SDF grid for the coarse ray samples (settings.search)
 ) -> tuple[Tensor, Tensor]:
     """Depth residuals r [R'] and dr/dz [R', D]: the SDF at the back-projected returns ("surface"), or traced
     minus observed depth where the code's surface and the view both return ("trace")."""
@@ -250,12 +222,13 @@ def residuals(
 ) -> Residuals:
     """Every view's silhouette residuals (and depth and free-space residuals where use_depth), stacked, with dr/dz."""
     sdf, gradients = code_functions(decoder, z.detach().float())
+    grid = settings.search(sdf)
     gradients = gradients if jacobian else None
     terms = [(0, silhouette_residuals)] + ([(1, depth_residuals), (2, free_space_residuals)] if use_depth else [])
     rs, Js, kinds = [], [], []
     for view in views:
         for kind, term in terms:
-            r, J = term(sdf, gradients, view, settings, z.shape[0])
+            r, J = term(sdf, gradients, view, settings, z.shape[0], grid)
             rs.append(r)
             Js.append(J)
             kinds.append(torch.full((r.shape[0],), kind))
