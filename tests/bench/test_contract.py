@@ -2,8 +2,9 @@
 
 Mesh vs fp32: Chamfer <= 1e-5 (unit-sphere frame), IoU at 64^3 >= 0.995; vertex and depth std within
 2 % (median relative); the evaluation's IoU within 0.002. On an analytic decoder that reads the point
-through a Linear layer (so bf16 autocast rounds it, as it rounds a DeepSDF decoder's input), and on a
-quickstart-sized (4 x 256) decoder fitted to a procedural chair.
+through a Linear layer (so bf16 autocast rounds it), on a small DeepSDF decoder (folded in bf16), and on
+a quickstart-sized (4 x 256) decoder fitted to a procedural chair. Where the fp32 re-evaluation of the
+surface holds (`exact_surface`), the bf16 mesh is the fp32 mesh itself, bit for bit.
 """
 
 import numpy as np

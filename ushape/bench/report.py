@@ -201,7 +201,8 @@ def markdown_report(shared: Sequence[Measurement], benches: Sequence[DecoderBenc
             notes = "; ".join(f"{name}: {note}" for name, note in per_decoder.items())
         cells = " | ".join(_fmt(r.seconds if r else None) for r in found)
         lines.append(f"| {name} | {cells} | {_paper(name)} | {notes} |")
-    lines += ["", "| step (decoder-independent) | time | paper A100 | target | notes |", "|---|---|---|---|---|"]
+    if shared:
+        lines += ["", "| step (decoder-independent) | time | paper A100 | target | notes |", "|---|---|---|---|---|"]
     for row in shared:
         target, verdict = "", ""
         if row.name == "fusion bayesian":
