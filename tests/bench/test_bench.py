@@ -148,3 +148,22 @@ def test_fitted_decoder_has_the_chair_surface_and_is_cached(tmp_path):
     assert "cached" in provenance
     for a, b in zip(first.state_dict().values(), again.state_dict().values()):
         assert torch.equal(a, b)
+
+
+def test_precision_only_bench_has_the_three_rows_per_decoder_and_their_ratios(tmp_path):
+    out = tmp_path / "bench.md"
+    argv = ["--quick", "--resolution", "16", "--precision-only", "--repeats", "2", "--depth-views", "2"]
+    assert main([*argv, "--out", str(out)]) == 0
+    text = out.read_text()
+    rows = {
+        line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]]
+        for line in text.splitlines()
+        if line.startswith("| ") and not line.startswith("| step") and not line.startswith("| ratio")
+    }
+    timed_rows = [name for name in rows if name.startswith("mesh with uncertainty (c2f + linearised), ")]
+    assert len(timed_rows) == 3 and "decoder field fp32" not in rows and "fusion bayesian" not in rows
+    for name in timed_rows:
+        assert _seconds(rows[name][0]) > 0 and _seconds(rows[name][1]) > 0
+        assert "min of 2 interleaved, median" in rows[name][3] and "load " in rows[name][3]
+    ratios = [line for line in text.splitlines() if line.startswith("| mesh w/ unc (linearised)")]
+    assert len(ratios) == 4 and all("not run" not in line for line in ratios)  # bf16 and auto, 2 decoders

@@ -98,3 +98,58 @@ def test_code_sdf_fn_takes_float32_points_for_a_float64_decoder():
     with torch.no_grad():
         expected = decoder(points.double(), code).float()
     assert torch.allclose(values, expected, atol=1e-6)
+
+
+def float32_decoder_and_code(seed: int = 0) -> tuple[DeepSDFDecoder, torch.Tensor]:
+    decoder, code = decoder_and_code(SHAPES[0], seed)
+    return decoder.float(), code.float()
+
+
+def test_bf16_fold_multiplies_hidden_features_in_bf16_and_keeps_the_rest_float32():
+    decoder, code = float32_decoder_and_code()
+    with frozen(decoder):
+        folded = fold_code(decoder, code, bf16=True)
+    assert folded.low == torch.bfloat16
+    *inner, last = folded.layers
+    assert all(layer.hidden is None or layer.hidden.dtype == torch.bfloat16 for layer in inner)
+    assert all(layer.code is None or layer.code.dtype == torch.bfloat16 for layer in inner)
+    assert all(layer.xyz is None or layer.xyz.dtype == torch.float32 for layer in folded.layers)
+    assert last.hidden.dtype == torch.float32 and all(layer.bias.dtype == torch.float32 for layer in folded.layers)
+
+
+def test_bf16_fold_never_rounds_the_point():
+    """Two points closer than bf16's spacing at 0.7 (2^-8): autocast makes them one, the bf16 fold does not."""
+    decoder, code = float32_decoder_and_code()
+    points = torch.tensor([[0.7, 0.2, -0.3], [0.7 + 4e-4, 0.2, -0.3]])
+    with frozen(decoder), torch.no_grad():
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            rounded = decoder(points, code).float()
+        folded = fold_code(decoder, code, bf16=True).sdf(points)
+    assert rounded[0] == rounded[1]
+    assert folded[0] != folded[1]
+
+
+def test_bf16_fold_is_close_to_float32_in_value_and_jacobian():
+    decoder, code = float32_decoder_and_code(seed=2)
+    points = torch.rand(2000, 3) * 2 - 1
+    with frozen(decoder), torch.no_grad():
+        sdf, jacobian = fold_code(decoder, code).sdf_and_jacobian(points)
+        low_sdf, low_jacobian = fold_code(decoder, code, bf16=True).sdf_and_jacobian(points)
+    assert low_sdf.dtype == low_jacobian.dtype == torch.float32
+    assert not torch.equal(low_sdf, sdf)  # it really ran in bf16
+    scale = sdf.abs().max()
+    assert (low_sdf - sdf).abs().max() <= 0.02 * scale
+    relative = (low_jacobian - jacobian).norm(dim=1) / jacobian.norm(dim=1)
+    assert relative.median() <= 0.01
+    with frozen(decoder), torch.no_grad():
+        torch.testing.assert_close(fold_code(decoder, code, bf16=True).sdf(points), low_sdf, rtol=0, atol=0)
+
+
+def test_decode_points_under_bf16_uses_the_bf16_fold():
+    from ushape.decoder.query import decode_points
+
+    decoder, code = float32_decoder_and_code()
+    points = torch.rand(300, 3) * 2 - 1
+    with frozen(decoder), torch.no_grad():
+        expected = fold_code(decoder, code, bf16=True).sdf(points)
+    assert torch.equal(decode_points(decoder, code, points, bf16=True), expected)

@@ -108,17 +108,92 @@ def test_surface_fn_places_every_vertex_from_the_exact_sdf(method):
     assert stats.evaluations > raw_stats.evaluations  # the exact evaluations are counted
 
 
-def test_exact_surface_evaluates_only_the_corners_of_crossing_cells():
-    from ushape.mesh.extraction import exact_surface, sdf_grid, surface_cell_corners
+def test_marched_corners_of_one_inside_point_are_its_six_neighbours():
+    from ushape.mesh.extraction import marched_corners, surface_cell_corners
+
+    grid = torch.ones(3, 3, 3)
+    grid[1, 1, 1] = -1.0
+    expected = torch.zeros(3, 3, 3, dtype=torch.bool)
+    for offset in ((0, 0, 0), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)):
+        expected[1 + offset[0], 1 + offset[1], 1 + offset[2]] = True
+    assert torch.equal(marched_corners(grid), expected)
+    assert bool(surface_cell_corners(grid).all())  # every cell changes sign; its 20 other corners are not read
+
+
+def test_a_cell_with_an_ambiguous_face_has_all_its_corners_marched():
+    from ushape.mesh.extraction import marched_corners
+
+    grid = torch.ones(3, 3, 3)
+    grid[0, 0, 0] = grid[1, 1, 0] = -1.0  # the face z = 0 of cell (0, 0, 0) alternates its signs
+    ends = [(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0), (2, 1, 0), (1, 2, 0), (1, 1, 1)]
+    far_corners = [(1, 0, 1), (0, 1, 1)]  # on no sign-changing edge, but the ambiguous cell's
+    expected = torch.zeros(3, 3, 3, dtype=torch.bool)
+    for point in ends + far_corners:
+        expected[point] = True
+    assert torch.equal(marched_corners(grid), expected)
+
+
+def test_marching_cubes_reads_only_the_signs_away_from_the_marched_corners():
+    """Any same-sign values off the marched corners give the same mesh, bit for bit (ambiguous cells too)."""
+    from ushape.mesh.extraction import marched_corners, marching_cubes
+
+    g = torch.Generator().manual_seed(0)
+    for _ in range(8):
+        coarse = torch.randn(1, 1, 4, 4, 4, generator=g)
+        grid = torch.nn.functional.interpolate(coarse, size=(16,) * 3, mode="trilinear", align_corners=True)[0, 0]
+        grid = grid + 0.05 * torch.randn(grid.shape, generator=g)  # noise: ambiguous faces occur
+        keep = marched_corners(grid)
+        other = grid.clone()
+        other[~keep] = grid[~keep].sign() * (5 * torch.rand(int((~keep).sum()), generator=g) + 0.01)
+        reference, mesh = marching_cubes(grid), marching_cubes(other)
+        assert np.array_equal(mesh.faces, reference.faces) and np.array_equal(mesh.vertices, reference.vertices)
+        assert 0 < int(keep.sum()) < keep.numel()
+    moved = grid.clone()
+    moved[keep.nonzero()[0].unbind()] *= 0.5  # a marched corner's value does move a vertex
+    assert not np.array_equal(marching_cubes(moved).vertices, reference.vertices)
+
+
+def test_exact_surface_trusts_signs_beyond_three_times_the_error_it_sees():
+    """An approximation 0.04 off (away from 0): the marched corners, then the points within 0.12 of 0, no more."""
+    from ushape.mesh.extraction import exact_surface, marched_corners
 
     grid = sdf_grid(sphere(0.5), 32)
-    calls = []
+    approximate = grid + 0.04 * grid.sign()  # the signs are right, the values are not
+    assert not bool(((approximate.abs() - 0.12).abs() < 1e-5).any())  # none at the margin: rounding is moot
+    evaluated = []
 
     def exact(p):
-        calls.append(p.shape[0])
+        evaluated.append(p.shape[0])
         return sphere(0.5)(p)
 
-    fixed, count = exact_surface(grid + 1e-3, exact)
-    assert count == int(surface_cell_corners(grid).sum()) == sum(calls)
-    band = surface_cell_corners(grid)
-    assert torch.allclose(fixed[band], grid[band]) and torch.allclose(fixed[~band], grid[~band] + 1e-3)
+    fixed, count = exact_surface(approximate, exact, chunk=10**6)
+    marched = marched_corners(grid)
+    expected = marched | (approximate.abs() <= 0.12)
+    assert count == int(expected.sum()) == sum(evaluated)
+    assert evaluated == [int(marched.sum()), int((expected & ~marched).sum())]  # marched, then uncertain
+    assert evaluated[1] > 0
+    # (the sphere's norm rounds its last bit differently in another batch)
+    assert torch.allclose(fixed[expected], grid[expected], rtol=0, atol=1e-6)
+    assert torch.equal(fixed[~expected], approximate[~expected])
+
+
+def test_exact_surface_finds_a_sign_the_approximation_got_wrong():
+    """A point 1e-3 outside that the approximation puts 1e-3 inside: the exact SDF's mesh."""
+    from ushape.mesh.extraction import exact_surface, marching_cubes
+
+    axis = grid_coordinates(32)
+    radius = float(torch.stack([axis[24], axis[16], axis[16]]).norm()) - 1e-3
+    grid = sdf_grid(sphere(radius), 32)
+    approximate = grid - 2e-3
+    assert bool(((approximate < 0) != (grid < 0)).any())
+    fixed, _ = exact_surface(approximate, sphere(radius))
+    assert bool(((fixed < 0) == (grid < 0)).all())
+    reference, mesh = marching_cubes(grid), marching_cubes(fixed)
+    assert np.array_equal(mesh.faces, reference.faces) and np.allclose(mesh.vertices, reference.vertices, atol=1e-6)
+
+
+def test_exact_surface_rejects_a_safety_below_one():
+    from ushape.mesh.extraction import exact_surface
+
+    with pytest.raises(ValueError, match="safety"):
+        exact_surface(sdf_grid(sphere(0.5), 8), sphere(0.5), safety=0.5)

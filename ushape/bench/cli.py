@@ -4,6 +4,7 @@
     python bench.py --quick               resolution 32, few repeats: a smoke run (seconds)
     python bench.py --skip-slow           no MC field for any decoder
     python bench.py --decoder-dir DIR     time a trained decoder folder in place of the fitted `small`
+    python bench.py --precision-only      only the mesh with uncertainty in fp32 / bf16 / auto, with the contract
     python bench.py --loaders-world DIR   also the loaders' per-core rates against a GPU's needs (a world folder)
 
 Untrained decoders are fitted to a procedural chair first (--fit-steps, cached), so coarse-to-fine,
@@ -35,12 +36,23 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--resolution", type=int, default=None, help="grid points per axis (default 128)")
     parser.add_argument("--decoders", nargs="+", default=["small", "deepsdf"], help="conf/decoder/ names")
     parser.add_argument("--decoder-dir", default=None, help="trained decoder folder used for `small`")
-    parser.add_argument("--repeats", type=int, default=1, help="repeats of each decoder-heavy row (median)")
+    parser.add_argument(
+        "--repeats",
+        type=int,
+        default=1,
+        help="repeats of each decoder-heavy row (median; the fp32 / bf16 / auto rows: interleaved rounds, minimum)",
+    )
     parser.add_argument(
         "--deepsdf-fraction",
         type=float,
         default=0.125,
         help="fraction of grid points timed for deepsdf's uncertainty fields (1: all)",
+    )
+    parser.add_argument(
+        "--precision-only",
+        action="store_true",
+        help="only the fp32 / bf16 / auto rows of the mesh with uncertainty (interleaved, --repeats rounds) "
+        "and the precision contract",
     )
     parser.add_argument("--skip-slow", action="store_true", help="skip the Monte Carlo field rows")
     parser.add_argument(
@@ -84,6 +96,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         depth_size=16 if args.quick else 48,
         refine_views=2 if args.quick else 12,
         refine_size=16 if args.quick else 64,
+        precision_only=args.precision_only,
     )
     fit_steps = args.fit_steps if args.fit_steps is not None else (0 if args.quick else 300)
     decoders = {name: (args.decoder_dir if name == "small" else None) for name in args.decoders}
@@ -97,7 +110,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         cache_dir=DEFAULT_OUT_DIR / "fitted",
     )
     report = markdown_report(shared, benches, settings)
-    if args.loaders_world:
+    if args.loaders_world and not args.precision_only:
         report += "\n## Loaders: can they feed a GPU?\n\n" + loader_section(args.loaders_world, args.quick)
     report += f"\nTotal bench time {time.time() - started:.0f} s.\n"
     out = Path(args.out) if args.out else DEFAULT_OUT_DIR / f"bench_{time.strftime('%Y-%m-%d')}.md"

@@ -55,6 +55,7 @@ class BenchSettings:
     precision: str = "fp32"  # what `precision: auto` resolved to on this machine (bench.py resolves it)
     precision_why: str = ""
     precision_rows: bool = True  # time the mesh with uncertainty in fp32, bf16 and auto, with the contract
+    precision_only: bool = False  # only those rows (no other decoder rows, encoders or fusion)
 
 
 def bench_decoder(
@@ -157,6 +158,8 @@ def decoder_rows(decoder: nn.Module, code: torch.Tensor, settings: BenchSettings
     """Field (fp32, bf16), marching cubes, meshes and uncertainty rows for one decoder."""
     n, reps = settings.resolution, settings.repeats
     var = torch.full_like(code, 0.01)
+    if settings.precision_only:
+        return _precision_rows(decoder, code, var, settings)
     rows: list[Measurement] = []
     with frozen(decoder):
         for bf16 in (False, True):  # first calls pay for allocator and kernel set-up; keep that out
@@ -194,8 +197,7 @@ def decoder_rows(decoder: nn.Module, code: torch.Tensor, settings: BenchSettings
     # meant for a Gaussian whose samples land on the same parts of the object.
     depth_var = torch.full_like(code, settings.depth_var)
     if settings.precision_rows:
-        cameras = orbit_cameras(settings.depth_views, settings.depth_size) if settings.depth_views > 0 else ()
-        rows += precision_rows(decoder, code, var, n, settings.precision, reps, cameras, settings.depth_size, depth_var)
+        rows += _precision_rows(decoder, code, var, settings)
     if settings.depth_views > 0:
         rows += depth_rows(
             decoder,
@@ -210,6 +212,23 @@ def decoder_rows(decoder: nn.Module, code: torch.Tensor, settings: BenchSettings
     if settings.refine_views > 0:
         rows += refine_rows(decoder, code, settings.refine_views, settings.refine_size, seed=settings.seed)
     return rows
+
+
+def _precision_rows(decoder: nn.Module, code: torch.Tensor, var: torch.Tensor, settings: BenchSettings):
+    """The mesh with uncertainty in fp32, bf16 and auto, with the contract (depth std over the depth rows' views)."""
+    cameras = orbit_cameras(settings.depth_views, settings.depth_size) if settings.depth_views > 0 else ()
+    depth_var = torch.full_like(code, settings.depth_var)
+    return precision_rows(
+        decoder,
+        code,
+        var,
+        settings.resolution,
+        settings.precision,
+        settings.repeats,
+        cameras,
+        settings.depth_size,
+        depth_var,
+    )
 
 
 def narrow_band_rows(
@@ -268,6 +287,8 @@ def run_bench(
         bench.rows = decoder_rows(decoder, code, own)
         benches.append(bench)
         latent = int(code.shape[0])
+    if settings.precision_only:
+        return [], benches
     shared = [encoder_row(name, size, latent) for name, size in encoders]
     shared += fusion_rows(settings, latent)
     return shared, benches

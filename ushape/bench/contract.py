@@ -13,6 +13,7 @@ pixels both paths hit.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -20,7 +21,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ushape.bench.timing import Measurement, timed
+from ushape.bench.timing import Measurement, interleaved
 from ushape.evaluation.code_metrics import grid_inside_fn
 from ushape.mesh.extraction import marching_cubes
 from ushape.metrics.pix3d import PIX3D_VOXELS, box_frame, voxel_iou, voxelise
@@ -137,7 +138,9 @@ def precision_rows(
     """ "mesh with uncertainty (c2f + linearised), <precision>" for fp32, bf16 and auto (resolved to `auto`).
 
     Each row times the coarse-to-fine mesh and the linearised vertex std together, as reconstruct.py runs
-    them; the bf16 and auto rows' notes carry the contract's figures against fp32.
+    them. The three are timed in interleaved rounds (`interleaved`), so a shared machine's drifting load
+    reaches each alike; a row's seconds are its minimum over the rounds, its note gives the median and
+    the load average before and after. The bf16 and auto rows' notes carry the contract's figures against fp32.
     """
 
     def run(bf16: bool):
@@ -145,16 +148,19 @@ def precision_rows(
         vertices = torch.as_tensor(np.asarray(mesh.vertices), dtype=torch.float32)
         return mesh, vertex_uncertainty(decoder, code, var, vertices, "linearised", bf16=bf16)
 
-    rows, figures = [], None
-    for name, bf16 in (("fp32", False), ("bf16", True), (f"auto (-> {auto})", auto == "bf16")):
-        run(bf16)  # the first call pays for kernel set-up (bf16 kernels are set up separately)
-        seconds, (mesh, _) = timed(lambda: run(bf16), repeats)
-        note = f"{len(mesh.vertices)} vertices"
+    paths = {"fp32": False, "bf16": True, f"auto (-> {auto})": auto == "bf16"}
+    load = os.getloadavg()[0]
+    timings = interleaved({name: (lambda bf16=bf16: run(bf16)) for name, bf16 in paths.items()}, repeats)
+    load = f"load {load:.1f} -> {os.getloadavg()[0]:.1f}"
+    figures = contract(decoder, code, var, resolution, True, cameras, depth_size, depth_var)
+    rows = []
+    for name, bf16 in paths.items():
+        timing = timings[name]
+        mesh, _ = timing.result
+        note = f"{len(mesh.vertices)} vertices; min of {repeats} interleaved, median {timing.median:.3g} s, {load}"
         if bf16:
-            if figures is None:
-                figures = contract(decoder, code, var, resolution, True, cameras, depth_size, depth_var)
             note += "; " + figures.text()
         elif name != "fp32":
             note += "; the fp32 computation itself"
-        rows.append(Measurement(f"{PRECISION_ROW}, {name}", seconds, repeats, note=note))
+        rows.append(Measurement(f"{PRECISION_ROW}, {name}", timing.minimum, repeats, note=note))
     return rows

@@ -177,7 +177,8 @@ def markdown_report(shared: Sequence[Measurement], benches: Sequence[DecoderBenc
         f"Machine: {platform.processor() or platform.machine()}, torch {torch.__version__}, "
         f"{torch.get_num_threads()} threads, CPU only, 1-min load average {os.getloadavg()[0]:.1f} when written "
         f"(other jobs on the machine slow every row alike). Medians of {settings.repeats} run(s) per decoder row, "
-        f"{settings.fusion_repeats} per fusion row.",
+        f"{settings.fusion_repeats} per fusion row; the fp32 / bf16 / auto rows: minimum of {settings.repeats} "
+        "interleaved round(s).",
         "",
         f"Precision `auto` on this machine: {settings.precision} ({settings.precision_why or 'not resolved'}).",
         "",
@@ -200,7 +201,8 @@ def markdown_report(shared: Sequence[Measurement], benches: Sequence[DecoderBenc
             notes = "; ".join(f"{name}: {note}" for name, note in per_decoder.items())
         cells = " | ".join(_fmt(r.seconds if r else None) for r in found)
         lines.append(f"| {name} | {cells} | {_paper(name)} | {notes} |")
-    lines += ["", "| step (decoder-independent) | time | paper A100 | target | notes |", "|---|---|---|---|---|"]
+    if shared:
+        lines += ["", "| step (decoder-independent) | time | paper A100 | target | notes |", "|---|---|---|---|---|"]
     for row in shared:
         target, verdict = "", ""
         if row.name == "fusion bayesian":
@@ -209,6 +211,8 @@ def markdown_report(shared: Sequence[Measurement], benches: Sequence[DecoderBenc
     lines += ["", "| ratio | decoder | value | target | result |", "|---|---|---|---|---|"]
     for bench in benches:
         for name, value, target, passed in ratio_rows(bench):
+            if value is None and settings.precision_only:
+                continue  # the rows it divides were not run
             shown = "not run" if value is None else f"{value:.2f}x"
             lines.append(f"| {name} | {bench.name} | {shown} | {target} | {_verdict(passed)} |")
     return "\n".join(lines) + "\n"

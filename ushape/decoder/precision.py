@@ -1,9 +1,12 @@
 """Which precision the decoder's inference runs in: "fp32", "bf16", or "auto" (bf16 where it is faster).
 
-bf16 autocast only pays where the hardware multiplies bf16 matrices natively: Intel CPUs with AMX
+bf16 surely pays where the hardware multiplies bf16 matrices natively: Intel CPUs with AMX
 (amx_bf16 and amx_tile; 3-4x faster than fp32 on the 8x512 decoder) and CUDA devices of compute
-capability 8.0 or newer (Ampere on). Elsewhere it is emulated and slower: 1.5-1.8x on an
-avx512_bf16 CPU without AMX, 7-9x on an AVX2 one. "auto" is resolved once, where a command starts
+capability 8.0 or newer (Ampere on). Elsewhere it depends on the CPU: bf16 autocast measured
+1.5-1.8x slower than fp32 on an Intel avx512_bf16 CPU without AMX and 7-9x on an AVX2 one, while
+the decoder folded in bf16 ran its field 2.2x faster than fp32 on an AMD EPYC with avx512_bf16.
+So "auto" keeps fp32 without AMX (it is never slower than fp32), and `bf16` can be asked for on a
+CPU where it is measured faster (bench.py's precision rows). "auto" is resolved once, where a command starts
 (reconstruct.py, eval.py, bench.py), and what it resolved to is passed down as the `bf16` flag of
 the decoding functions and recorded in the command's outputs.
 
@@ -62,7 +65,7 @@ def bf16_is_faster(device: torch.device | str = "cpu", capabilities: Mapping | N
         if all(flags.values()):
             return True, "CPU with AMX (amx_bf16, amx_tile)"
         missing = ", ".join(flag for flag, present in flags.items() if not present)
-        return False, f"CPU without AMX ({missing} absent): bf16 would be emulated, slower than fp32"
+        return False, f"CPU without AMX ({missing} absent): no native bf16 matrix unit, fp32 is kept"
     if device.type == "cuda":
         capability = tuple(torch.cuda.get_device_capability(device))
         shown = ".".join(map(str, capability))

@@ -2,7 +2,7 @@
 
 The shared building block of every stage downstream (grids, meshes, propagation, depth): one place
 that checks a code and its points, folds the code into a DeepSDF network (`fold_code`), and runs the
-decoder frozen, in chunks of DEFAULT_CHUNK points, optionally under bf16 autocast.
+decoder frozen, in chunks of DEFAULT_CHUNK points, optionally in bf16.
 """
 
 from __future__ import annotations
@@ -42,7 +42,8 @@ def decode_points(
 ) -> Tensor:  # [P]
     """SDF f(x, z) at every point for one latent code, in chunks of `chunk` points, without gradients.
 
-    A DeepSDFDecoder runs with the code folded in (`fold_code`, unless bf16): same values, less work.
+    A DeepSDFDecoder runs with the code folded in (`fold_code`): same values, less work. Under bf16 it
+    is folded in bf16 (its point stays float32); another decoder runs under bf16 autocast.
     """
     if z.ndim != 1:
         raise ValueError(f"z must be one latent code of shape [D], got {tuple(z.shape)}")
@@ -52,11 +53,12 @@ def decode_points(
     check_points(points)
     check_chunk(chunk)
     out = torch.empty(points.shape[0], dtype=output_dtype(points, bf16), device=points.device)
-    with frozen(decoder), torch.no_grad(), decoder_autocast(points.device, bf16):
-        folded = None if bf16 else fold_code(decoder, z)
-        for start in range(0, points.shape[0], chunk):
-            block = points[start : start + chunk]
-            out[start : start + block.shape[0]] = decoder(block, z) if folded is None else folded.sdf(block)
+    with frozen(decoder), torch.no_grad():
+        folded = fold_code(decoder, z, bf16)
+        with decoder_autocast(points.device, bf16 and folded is None):
+            for start in range(0, points.shape[0], chunk):
+                block = points[start : start + chunk]
+                out[start : start + block.shape[0]] = decoder(block, z) if folded is None else folded.sdf(block)
     return out
 
 

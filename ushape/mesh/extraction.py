@@ -28,6 +28,9 @@ SDFFn = Callable[[Tensor], Tensor]
 # activations then stay in cache. It is the best size for 8x512 (2048 is a little better for 4x256).
 # A GPU wants far bigger chunks: pass `chunk`.
 DEFAULT_CHUNK = 4096
+# `exact_surface` trusts an approximate sign where |value| exceeds this multiple of the largest error it
+# has seen near the surface.
+SIGN_SAFETY = 3.0
 
 
 class EmptySurfaceError(ValueError):
@@ -144,23 +147,56 @@ def surface_cell_corners(sdf: Tensor, widen: int = 0) -> Tensor:  # [N, N, N] ->
     return corners[0, 0] > 0
 
 
-def exact_surface(grid: Tensor, surface_fn: SDFFn, chunk: int = DEFAULT_CHUNK) -> tuple[Tensor, int]:
+def marched_corners(sdf: Tensor) -> Tensor:  # [N, N, N] -> bool [N, N, N]
+    """Grid points whose values marching cubes reads, beyond their signs: it interpolates each vertex
+    between the two ends of an edge whose sign changes, and it resolves a cell with an ambiguous face
+    (signs alternating around the face) by testing values at all 8 of the cell's corners.
+    """
+    inside = sdf < 0
+    n = inside.shape[0]
+    ends = torch.zeros_like(inside)
+    ambiguous = torch.zeros((n - 1,) * 3, dtype=torch.bool)
+    for axis in range(3):
+        along, marked = inside.movedim(axis, 0), ends.movedim(axis, 0)  # views: `axis` first
+        change = along[1:] != along[:-1]
+        marked[1:] |= change
+        marked[:-1] |= change
+        # The faces normal to `axis`, one square per index along it: alternating signs around it.
+        face = (along[:, :-1, :-1] == along[:, 1:, 1:]) & (along[:, :-1, 1:] == along[:, 1:, :-1])
+        face &= along[:, :-1, :-1] != along[:, :-1, 1:]
+        ambiguous |= (face[1:] | face[:-1]).movedim(0, axis)  # a cell has two faces normal to `axis`
+    corners = F.max_pool3d(ambiguous.float()[None, None], 2, stride=1, padding=1)[0, 0] > 0
+    return ends | corners
+
+
+def exact_surface(
+    grid: Tensor, surface_fn: SDFFn, chunk: int = DEFAULT_CHUNK, safety: float = SIGN_SAFETY
+) -> tuple[Tensor, int]:
     """The grid [N, N, N] over [-1, 1]^3 with every value marching cubes reads evaluated by surface_fn.
 
-    Marching cubes places vertices only from the corners of cells whose corners change sign. Those
-    corners are re-evaluated by surface_fn; where that flips a sign, the newly crossing cells' corners
-    are too, until no crossing cell has a corner left from the approximate grid. The mesh is then the
-    one the exact SDF gives, wherever the approximate grid found its surface at all (a cell the
-    approximation puts wholly on one side, and the exact SDF not, stays unseen: that needs an error
-    larger than the cell). -> (grid, points evaluated by surface_fn)
+    Marching cubes reads the signs of all points and the values of `marched_corners`. So surface_fn
+    re-evaluates (1) the marched corners and (2) every point whose approximate value lies within a
+    margin of 0, where the approximation's sign is not certain; elsewhere the sign stands. The margin
+    is `safety` times the largest |approximate - exact| seen so far among re-evaluated points (it
+    starts at 0: the first pass evaluates the marched corners only, and measures the error there).
+    Where that flips a sign or widens the margin, the new marched corners and uncertain points are
+    evaluated too, until none is left. The mesh is then the one the exact SDF gives wherever the
+    approximation's error away from the re-evaluated points stays under the margin (a cell it puts
+    wholly on one side, and the exact SDF not, needs an error larger than the margin).
+    -> (grid, points evaluated by surface_fn)
     """
+    if safety < 1:
+        raise ValueError(f"safety must be >= 1 (a multiple of the error seen), got {safety}")
     grid, n = grid.clone(), grid.shape[0]
     exact = torch.zeros(grid.shape, dtype=torch.bool)
+    margin = 0.0
     while True:
-        todo = surface_cell_corners(grid) & ~exact
+        todo = (marched_corners(grid) | (grid.abs() <= margin)) & ~exact
         if not bool(todo.any()):
             return grid, int(exact.sum())
+        approximate = grid[todo]
         grid[todo] = evaluate_sdf(surface_fn, _index_to_coordinate(todo.nonzero(), n), chunk)
+        margin = max(margin, safety * float((grid[todo] - approximate).abs().max()))
         exact |= todo
 
 

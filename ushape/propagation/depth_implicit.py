@@ -70,7 +70,8 @@ def depth_uncertainty_implicit_views(
 
     Every view's rays are traced together: one decoder call per step serves all of them, which is
     what makes one trace of V views cheaper than V traces (most steps march only a few rays).
-    bf16 traces under bf16 autocast; the gradients at the hits stay fp32.
+    bf16 traces in bf16 (a DeepSDFDecoder folded in bf16, another decoder under autocast); the gradients
+    at the hits stay fp32.
     """
     check_latent_gaussian(mu, var)
     check_code_size(decoder, mu.shape[0])
@@ -84,8 +85,8 @@ def depth_uncertainty_implicit_views(
     with frozen(decoder), torch.no_grad():
         # A DeepSDFDecoder is traced and differentiated with the mean code folded in (no autograd).
         folded = fold_code(decoder, mu)
-        by_module = folded is None or bf16  # the fold runs in fp32 only
-        trace_sdf = codes_sdf(decoder, mu[None], bf16) if by_module else (lambda points, _code: folded.sdf(points))
+        traced = fold_code(decoder, mu, bf16=True) if bf16 and folded is not None else folded
+        trace_sdf = codes_sdf(decoder, mu[None], bf16) if traced is None else (lambda points, _code: traced.sdf(points))
         t, hit = sphere_trace(trace_sdf, origins, directions, 1, steps, eps)
         t, hit = t[0], hit[0]
         pixels = hit.nonzero().squeeze(1)

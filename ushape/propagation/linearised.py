@@ -89,7 +89,7 @@ def propagate_linearised(
     Exact for a decoder linear in z; for the real decoder it is the local (delta-method)
     approximation, good while the latent spread stays where the decoder is near-linear.
     Costs about one forward and one backward pass per chunk, however many samples MC would need;
-    a DeepSDFDecoder's backward is the hand-written one of `fold_code` (no autograd) unless bf16.
+    a DeepSDFDecoder's backward is the hand-written one of `fold_code` (no autograd; folded in bf16 under bf16).
     """
     check_latent_gaussian(mu, var)
     check_code_size(decoder, mu.shape[0])
@@ -99,7 +99,7 @@ def propagate_linearised(
     mean = torch.empty(points.shape[0], dtype=dtype, device=points.device)
     variance = torch.empty_like(mean)
     with frozen(decoder):
-        folded = None if bf16 else fold_code(decoder, mu)
+        folded = fold_code(decoder, mu, bf16)
         for start in range(0, points.shape[0], chunk):
             block = points[start : start + chunk]
             stop = start + block.shape[0]
