@@ -52,3 +52,11 @@ def test_record_round_trip():
     fit = SharedError(torch.tensor([0.25, 0.5]), 0.75, 10)
     back = SharedError.from_record(fit.to_record())
     assert torch.equal(back.shared_var, fit.shared_var) and back.view_scale == 0.75 and back.n_shapes == 10
+    assert back.sdf_temperature is None and "sdf_temperature" not in fit.to_record()
+
+
+def test_record_keeps_the_rules_sdf_temperature_and_reads_old_records_without_it():
+    fit = SharedError(torch.tensor([0.25, 0.5]), 0.75, 10, sdf_temperature=1.8)
+    assert SharedError.from_record(fit.to_record()).sdf_temperature == 1.8
+    old = {"var": [0.25, 0.5], "view_scale": 0.75, "n_shapes": 10}  # written before the rule had one
+    assert SharedError.from_record(old).sdf_temperature is None

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
 import torch
@@ -86,6 +87,8 @@ class SharedErrorFusion:
     S [D] and c are fitted on val beside the temperature (`python reconstruct.py --fit-temperature`)
     and apply to temperature-scaled view variances; `calibrated(S, c)` gives the rule with them.
     With k, only the K lowest-trace views are fused, chosen exactly as Bayesian-K chooses them.
+    sdf_temperature: the factor on this rule's fused variance once propagated to SDF values (fitted on
+    val beside S; None: whoever propagates it applies the single-view SDF temperature).
     """
 
     def __init__(
@@ -95,6 +98,7 @@ class SharedErrorFusion:
         k: int | None = None,
         var_floor: float = 1e-8,
         source: str | None = None,
+        sdf_temperature: float | None = None,
     ) -> None:
         if var_floor <= 0:
             raise ValueError(f"var_floor must be > 0, got {var_floor}")
@@ -106,13 +110,21 @@ class SharedErrorFusion:
         if self.shared_var is not None:
             check_shared(self.shared_var, self.view_scale, self.shared_var.shape[-1])
         self.var_floor = var_floor
+        if sdf_temperature is not None and not (math.isfinite(float(sdf_temperature)) and sdf_temperature > 0):
+            raise ValueError(f"sdf_temperature must be a finite number > 0 or None, got {sdf_temperature!r}")
+        self.sdf_temperature = None if sdf_temperature is None else float(sdf_temperature)
         self.name = "shared" if self.k is None else f"shared-{self.k}"
 
     def calibrated(
-        self, shared_var: Sequence[float] | Tensor, view_scale: float, source: str | None = None
+        self,
+        shared_var: Sequence[float] | Tensor,
+        view_scale: float,
+        source: str | None = None,
+        sdf_temperature: float | None = None,
     ) -> SharedErrorFusion:
-        """This rule with a fitted shared error S [D] and per-view scale c (`source`: where they were read)."""
-        return SharedErrorFusion(shared_var, view_scale, self.k, self.var_floor, source)
+        """This rule with a fitted shared error S [D], per-view scale c and SDF temperature (`source`: where
+        they were read)."""
+        return SharedErrorFusion(shared_var, view_scale, self.k, self.var_floor, source, sdf_temperature)
 
     def _fit(self) -> Tensor:
         if self.shared_var is None:

@@ -5,7 +5,9 @@ is the same for all views of the shape and e_sv' ~ N(0, c var_sv) is the view's 
 different views of one shape, E[e_sv e_sw] = S (per dimension): S is the mean over shapes of the mean
 cross-view product, ((sum_v e_v)^2 - sum_v e_v^2) / (V (V - 1)), floored at 0. Given S, c minimises the
 Gaussian NLL of the single views' errors under N(0, S + c var), so one view stays as calibrated as the
-temperature left it. `ushape.fusion.SharedErrorFusion` fuses with S + c (sum_v var_v^-1)^-1.
+temperature left it. `ushape.fusion.SharedErrorFusion` fuses with S + c (sum_v var_v^-1)^-1. The rule's own
+SDF temperature (its fused variance propagated to SDF values, fitted on val fused 1, 3 and 10 views at a
+time) is fitted by `ushape.reconstruction.temperature_store` and kept here beside S.
 """
 
 from __future__ import annotations
@@ -23,19 +25,26 @@ SCALE_RANGE = (-8.0, 2.0)
 
 @dataclass(frozen=True)
 class SharedError:
-    """A fitted shared error: S [D] (variance per latent dimension), the views' own scale c, shapes used."""
+    """A fitted shared error: S [D] (variance per latent dimension), the views' own scale c, shapes used,
+    and the SDF temperature of the rule's fused variance (None where it was not fitted)."""
 
     shared_var: Tensor  # [D]
     view_scale: float
     n_shapes: int
+    sdf_temperature: float | None = None
 
     def to_record(self) -> dict[str, Any]:
-        return {"var": self.shared_var.tolist(), "view_scale": self.view_scale, "n_shapes": self.n_shapes}
+        record = {"var": self.shared_var.tolist(), "view_scale": self.view_scale, "n_shapes": self.n_shapes}
+        return record if self.sdf_temperature is None else {**record, "sdf_temperature": self.sdf_temperature}
 
     @staticmethod
     def from_record(record: dict[str, Any]) -> SharedError:
+        sdf = record.get("sdf_temperature")
         return SharedError(
-            torch.tensor(record["var"], dtype=torch.float32), float(record["view_scale"]), int(record["n_shapes"])
+            torch.tensor(record["var"], dtype=torch.float32),
+            float(record["view_scale"]),
+            int(record["n_shapes"]),
+            None if sdf is None else float(sdf),
         )
 
 
