@@ -41,7 +41,8 @@ def test_the_demo_turns_bayesian_k_into_shared_k_only_once_fitted(tmp_path):
 
 
 def test_shared_rule_takes_its_own_sdf_temperature_and_old_fits_fall_back_to_the_single_view_one(tmp_path, caplog):
-    assert default_fusion(_predictor(tmp_path, True, shared_sdf_temperature=1.8)).sdf_temperature == 1.8
+    rule = default_fusion(_predictor(tmp_path, True, shared_sdf_temperature=1.8))
+    assert rule.sdf_temperature == 1.8 and "SDF factor 1.8 fitted on val" in rule.calibration  # summary.json says so
     with caplog.at_level(logging.INFO):
         rule = default_fusion(_predictor(tmp_path, True))  # a temperature.json written before the rule had one
     assert rule.sdf_temperature == 1.5 and "single-view T_sdf" in caplog.text

@@ -81,6 +81,19 @@ class SharedIncremental:
         return add_shared(self.inner.result(), self.shared_var, self.view_scale)
 
 
+def check_sdf_temperature(value) -> float | None:
+    """None, or the factor on a rule's propagated SDF variance as a float; a ValueError if not finite and > 0."""
+    if value is None:
+        return None
+    try:
+        factor = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"sdf_temperature must be a finite number > 0 or None, got {value!r}") from None
+    if not (math.isfinite(factor) and factor > 0):
+        raise ValueError(f"sdf_temperature must be a finite number > 0 or None, got {value!r}")
+    return factor
+
+
 class SharedErrorFusion:
     """Bayesian fusion that keeps the error all views of a shape share: var = S + c (sum_v var_v^-1)^-1.
 
@@ -103,16 +116,17 @@ class SharedErrorFusion:
         if var_floor <= 0:
             raise ValueError(f"var_floor must be > 0, got {var_floor}")
         self.k = None if k is None else check_k(k)
+        self.sdf_temperature = check_sdf_temperature(sdf_temperature)
         # What a summary says about the fit: where S and c came from (None until fitted).
-        self.calibration = None if shared_var is None else f"shared error S and view scale c fitted on val: {source}"
+        fitted = "shared error S, view scale c" + (
+            "" if self.sdf_temperature is None else f" and SDF factor {self.sdf_temperature:.3g}"
+        )
+        self.calibration = None if shared_var is None else f"{fitted} fitted on val: {source}"
         self.shared_var = None if shared_var is None else torch.as_tensor(shared_var, dtype=torch.float32)
         self.view_scale = float(view_scale)
         if self.shared_var is not None:
             check_shared(self.shared_var, self.view_scale, self.shared_var.shape[-1])
         self.var_floor = var_floor
-        if sdf_temperature is not None and not (math.isfinite(float(sdf_temperature)) and sdf_temperature > 0):
-            raise ValueError(f"sdf_temperature must be a finite number > 0 or None, got {sdf_temperature!r}")
-        self.sdf_temperature = None if sdf_temperature is None else float(sdf_temperature)
         self.name = "shared" if self.k is None else f"shared-{self.k}"
 
     def calibrated(
