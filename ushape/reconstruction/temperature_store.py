@@ -127,7 +127,12 @@ def fused_sdf_errors(
 
 
 def shared_sdf_record(
-    predictor: Predictor, world: WorldIndex, fit: SharedError, mu, var, shape_ids: list[str]
+    predictor: Predictor,
+    world: WorldIndex,
+    fit: SharedError,
+    mu: torch.Tensor,  # [N, D]
+    var: torch.Tensor,  # [N, D], already T-scaled
+    shape_ids: list[str],
 ) -> dict[str, Any]:
     """The shared rule's fit with its own SDF temperature, fitted on the val views (var T-scaled) fused 1, 3
     and 10 at a time: the factor whose worst calibration error over those view counts is least."""
