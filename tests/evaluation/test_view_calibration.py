@@ -56,7 +56,7 @@ def test_shared_rule_stays_calibrated_across_views_and_bayesian_does_not():
 def test_rules_of_a_run_include_shared_only_once_it_is_fitted(tmp_path):
     import json
 
-    from ushape.evaluation.view_calibration import evaluation_rules, table_view_calibration
+    from ushape.evaluation.view_calibration import evaluation_rules, rule_sdf_temperature, table_view_calibration
 
     checkpoint = tmp_path / "best.ckpt"
     rules, latent_t, _ = evaluation_rules(checkpoint, 4)
@@ -67,6 +67,14 @@ def test_rules_of_a_run_include_shared_only_once_it_is_fitted(tmp_path):
     )
     rules, latent_t, sdf_t = evaluation_rules(checkpoint, 4)
     assert {"shared", "shared-4"} <= set(rules) and (latent_t, sdf_t) == (2.0, 1.5)
+    assert rules["shared"].sdf_temperature == 1.5  # no SDF temperature of its own: the single-view one
+    (tmp_path / "temperature.json").write_text(
+        json.dumps({**record, "shared_error": {**record["shared_error"], "n_shapes": 3, "sdf_temperature": 1.8}})
+    )
+    rules, _, sdf_t = evaluation_rules(checkpoint, 4)
+    assert rules["shared"].sdf_temperature == rules["shared-4"].sdf_temperature == 1.8 and sdf_t == 1.5
+    assert rule_sdf_temperature(rules["shared"], sdf_t) == 1.8 and rule_sdf_temperature(rules["bayesian"], sdf_t) == 1.5
+    assert rule_sdf_temperature(rules["shared"], sdf_t, after=lambda fused, keys: fused) == 1.5  # refined: not fused
     fused = rules["shared"](torch.zeros(2, 2), torch.ones(2, 2))
     assert torch.allclose(fused.var, torch.tensor([0.1 + 0.25, 0.2 + 0.25]))
     row = {"label": "Ours", "fusion": "shared", "n_views": 3, "n_shapes": 2}

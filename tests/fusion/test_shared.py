@@ -73,3 +73,12 @@ def test_batched_shared_fusion():
     fused = fuse_shared(mu, var, torch.tensor([0.2, 0.4]))
     for b in range(3):
         assert torch.allclose(fused.var[b], fuse_shared(mu[b], var[b], torch.tensor([0.2, 0.4])).var)
+
+
+def test_shared_rule_carries_its_sdf_temperature_and_rejects_a_bad_one():
+    rule = SharedErrorFusion(k=2).calibrated(torch.ones(3), 0.5, sdf_temperature=1.8)
+    assert rule.sdf_temperature == 1.8 and rule.k == 2
+    assert SharedErrorFusion().calibrated(torch.ones(3), 0.5).sdf_temperature is None
+    for bad in (0.0, -1.0, float("nan"), "warm"):
+        with pytest.raises(ValueError, match="sdf_temperature"):
+            SharedErrorFusion(torch.ones(3), 0.5, sdf_temperature=bad)

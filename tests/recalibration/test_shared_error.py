@@ -20,10 +20,31 @@ def _draw(n_shapes=3000, n_views=6, seed=0, scale=1.0):
 def test_views_with_a_known_shared_error_give_it_back():
     shared, code, mu, var = _draw(scale=0.5)
     groups = torch.arange(mu.shape[0]).repeat_interleave(mu.shape[1])
-    fit = fit_shared_error(mu.reshape(-1, 4), var.reshape(-1, 4), code.reshape(-1, 4), groups)
-    assert fit.n_shapes == mu.shape[0]
+    fit = fit_shared_error(mu.reshape(-1, 4), var.reshape(-1, 4), code.reshape(-1, 4), groups, "diagonal")
+    assert fit.n_shapes == mu.shape[0] and fit.structure == "diagonal"
     assert torch.allclose(fit.shared_var, shared, atol=0.04)
     assert fit.view_scale == pytest.approx(0.5, rel=0.05)
+
+
+def test_proportional_structure_gives_back_a_shared_error_shaped_like_the_views_variance():
+    g = torch.Generator().manual_seed(2)
+    n_shapes, n_views, profile = 3000, 6, torch.tensor([0.2, 1.0, 0.5, 2.0])
+    var = profile * (0.5 + torch.rand(n_shapes, n_views, 4, generator=g))  # mean over views: profile
+    shared = 0.3 * var.reshape(-1, 4).mean(0)  # S = 0.3 mean var: one number to find
+    code = torch.randn(n_shapes, 1, 4, generator=g).expand(n_shapes, n_views, 4)
+    mu = (
+        code
+        + torch.randn(n_shapes, 1, 4, generator=g) * shared.sqrt()
+        + torch.randn(var.shape, generator=g) * var.sqrt()
+    )
+    groups = torch.arange(n_shapes).repeat_interleave(n_views)
+    fit = fit_shared_error(mu.reshape(-1, 4), var.reshape(-1, 4), code.reshape(-1, 4), groups)
+    assert fit.structure == "proportional" and torch.allclose(fit.shared_var, shared, rtol=0.05)
+    assert fit.view_scale == pytest.approx(1.0, rel=0.05)
+    diagonal = fit_shared_error(mu.reshape(-1, 4), var.reshape(-1, 4), code.reshape(-1, 4), groups, "diagonal")
+    assert float(fit.shared_var.sum()) == pytest.approx(float(diagonal.shared_var.sum()), rel=1e-5)  # same trace
+    with pytest.raises(ValueError, match="structure"):
+        fit_shared_error(mu.reshape(-1, 4), var.reshape(-1, 4), code.reshape(-1, 4), groups, "full")
 
 
 def test_fused_variance_is_the_analytic_one_and_matches_the_fused_error():
@@ -52,3 +73,12 @@ def test_record_round_trip():
     fit = SharedError(torch.tensor([0.25, 0.5]), 0.75, 10)
     back = SharedError.from_record(fit.to_record())
     assert torch.equal(back.shared_var, fit.shared_var) and back.view_scale == 0.75 and back.n_shapes == 10
+    assert back.sdf_temperature is None and "sdf_temperature" not in fit.to_record()
+    assert back.structure == "diagonal"
+
+
+def test_record_keeps_the_rules_sdf_temperature_and_reads_old_records_without_it():
+    fit = SharedError(torch.tensor([0.25, 0.5]), 0.75, 10, sdf_temperature=1.8)
+    assert SharedError.from_record(fit.to_record()).sdf_temperature == 1.8
+    old = {"var": [0.25, 0.5], "view_scale": 0.75, "n_shapes": 10}  # written before the rule had one
+    assert SharedError.from_record(old).sdf_temperature is None and SharedError.from_record(old).structure == "diagonal"

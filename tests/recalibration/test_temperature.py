@@ -7,7 +7,12 @@ import torch
 from scipy.optimize import minimize_scalar
 
 from ushape.metrics.calibration import calibration_curve, calibration_error
-from ushape.recalibration import apply_temperature, fit_temperature, gaussian_nll_with_temperature
+from ushape.recalibration import (
+    apply_temperature,
+    fit_calibration_temperature_across,
+    fit_temperature,
+    gaussian_nll_with_temperature,
+)
 
 
 def _validation(scale, n=4000, d=16, seed=0):
@@ -81,3 +86,37 @@ def test_calibration_temperature_recovers_a_known_overconfidence():
     assert t == pytest.approx(1.0, rel=0.1) and after < 0.01
     with pytest.raises(ValueError, match="std >= 0"):
         fit_calibration_temperature(error, -std)
+
+
+def _groups(factors, n=20000, seed=0):
+    """(|error|, std) per group: std drawn per sample, errors Gaussian with `factor` times its variance."""
+    gen = torch.Generator().manual_seed(seed)
+    groups = []
+    for factor in factors:
+        std = torch.rand(n, generator=gen, dtype=torch.float64) * (0.1 + len(groups)) + 0.01
+        groups.append(((math.sqrt(factor) * std * torch.randn(n, generator=gen, dtype=torch.float64)).abs(), std))
+    return groups
+
+
+def test_across_groups_gives_back_the_known_variance_scale():
+    for factor in (0.5, 2.0, 4.0):
+        found, before, after = fit_calibration_temperature_across(_groups([factor] * 3))
+        assert found == pytest.approx(factor, rel=0.1)  # the grid is 2^(1/8) apart: within a step
+        assert max(after) < 0.01 < min(before)  # calibrated at T, not at T = 1
+
+
+def test_across_groups_minimises_the_worst_group():
+    groups = _groups([1.0, 4.0])  # no one factor fits both: the worst group's error is balanced
+    found, _, after = fit_calibration_temperature_across(groups)
+    assert 1.0 < found < 4.0
+    for own in (1.0, 4.0):  # either group's own factor leaves the other group worse than the balance
+        assert max(after) < max(fit_calibration_temperature_across(groups, grid=(own,))[2])
+
+
+def test_across_groups_rejects_bad_input():
+    with pytest.raises(ValueError, match="at least one"):
+        fit_calibration_temperature_across([])
+    with pytest.raises(ValueError, match="std >= 0"):
+        fit_calibration_temperature_across([(torch.ones(3), -torch.ones(3))])
+    with pytest.raises(ValueError, match="must be equal"):
+        fit_calibration_temperature_across([(torch.ones(3), torch.ones(2))])

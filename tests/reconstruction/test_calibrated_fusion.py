@@ -1,4 +1,5 @@
 import json
+import logging
 from types import SimpleNamespace
 
 import pytest
@@ -6,12 +7,15 @@ import torch
 
 from ushape.fusion import BayesianFusion, BayesianKFusion, SharedErrorFusion
 from ushape.reconstruction.calibrated_fusion import calibrate_fusion, calibrated_counterpart, default_fusion
+from ushape.reconstruction.pipeline import sdf_temperature
 
 
-def _predictor(tmp_path, fitted: bool):
+def _predictor(tmp_path, fitted: bool, shared_sdf_temperature: float | None = None):
     if fitted:
         record = {"temperature": 2.0, "sdf_temperature": 1.5}
         record["shared_error"] = {"var": [0.1, 0.2], "view_scale": 0.5, "n_shapes": 4}
+        if shared_sdf_temperature is not None:
+            record["shared_error"]["sdf_temperature"] = shared_sdf_temperature
         (tmp_path / "temperature.json").write_text(json.dumps(record))
     return SimpleNamespace(checkpoint=tmp_path / "best.ckpt", temperature=None, sdf_temperature=None)
 
@@ -34,3 +38,19 @@ def test_the_demo_turns_bayesian_k_into_shared_k_only_once_fitted(tmp_path):
     assert isinstance(calibrated_counterpart(BayesianKFusion(2), _predictor(tmp_path, False)), BayesianKFusion)
     assert calibrated_counterpart(BayesianKFusion(2), _predictor(tmp_path, True)).name == "shared-2"
     assert calibrated_counterpart(None, _predictor(tmp_path, True)).name == "shared"
+
+
+def test_shared_rule_takes_its_own_sdf_temperature_and_old_fits_fall_back_to_the_single_view_one(tmp_path, caplog):
+    rule = default_fusion(_predictor(tmp_path, True, shared_sdf_temperature=1.8))
+    assert rule.sdf_temperature == 1.8 and "SDF factor 1.8 fitted on val" in rule.calibration  # summary.json says so
+    with caplog.at_level(logging.INFO):
+        rule = default_fusion(_predictor(tmp_path, True))  # a temperature.json written before the rule had one
+    assert rule.sdf_temperature == 1.5 and "single-view T_sdf" in caplog.text
+
+
+def test_the_meshes_std_takes_the_rules_sdf_temperature_unless_the_code_was_refined(tmp_path):
+    predictor = SimpleNamespace(sdf_temperature=1.5)
+    shared = default_fusion(_predictor(tmp_path, True, shared_sdf_temperature=1.8))
+    assert sdf_temperature(shared, predictor) == 1.8
+    assert sdf_temperature(shared, predictor, refined=True) == 1.5  # a refined posterior is not the fused one
+    assert sdf_temperature(BayesianFusion(), predictor) == 1.5

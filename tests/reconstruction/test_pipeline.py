@@ -113,6 +113,10 @@ def test_cli_reports_skipped_images_and_bad_fusion(tiny_run, tmp_path, capsys, m
     # The SDF-space factor, fitted on the val shapes' SDF samples; never worse than none (T = 1 is on the grid).
     assert record["sdf_temperature"] > 0 and record["sdf_calibration_after"] <= record["sdf_calibration_before"]
     assert record["sdf_views"] == 9  # 3 val shapes x 3 renders, all within the first 4 views
+    # The shared rule's own SDF factor, on its val views fused 1 and 3 at a time (3 views a shape: no 10).
+    shared = record["shared_error"]
+    assert shared["sdf_view_counts"] == [1, 3] and shared["sdf_temperature"] > 0
+    assert max(shared["sdf_calibration_after"]) <= max(shared["sdf_calibration_before"])
     predictor = load_predictor(tiny_run["run"], temperature=True)
     assert predictor.sdf_temperature == record["sdf_temperature"]
     (tiny_run["checkpoint"].parent / "temperature.json").unlink()

@@ -22,6 +22,7 @@ from torch import Tensor
 from ushape.evaluation.methods import log_fallbacks, stack_variances
 from ushape.evaluation.views import Estimate
 from ushape.fusion.rules import FusedCode
+from ushape.fusion.subsets import view_subsets
 from ushape.metrics.calibration import calibration_curve, calibration_error, two_sided_quantile
 from ushape.propagation import SDF_CLAMP, propagate_to_sdf
 
@@ -30,19 +31,6 @@ FusionRule = Callable[[Tensor, Tensor], FusedCode]  # (mu [V, D], var [V, D]) ->
 AfterSubset = Callable[[Estimate, list[int]], Estimate]
 VIEW_COUNTS = (1, 3, 10)
 COVERAGE = 0.9
-
-
-def view_subsets(n_views: int, n_fused: int, draws: int, generator: torch.Generator) -> Tensor:
-    """[R, n] view indices to fuse: every single view for n = 1, all views for n = V, else `draws` random
-    subsets of n distinct views (each row ascending)."""
-    if not 1 <= n_fused <= n_views:
-        raise ValueError(f"cannot fuse {n_fused} of {n_views} views: pick 1 <= n <= {n_views}")
-    if n_fused == 1:
-        return torch.arange(n_views).unsqueeze(-1)
-    if n_fused == n_views:
-        return torch.arange(n_views).unsqueeze(0)
-    rows = [torch.randperm(n_views, generator=generator)[:n_fused].sort().values for _ in range(draws)]
-    return torch.stack(rows)
 
 
 def interval_scores(abs_error: Tensor, std: Tensor, n_levels: int = 20) -> dict[str, float]:
@@ -102,6 +90,13 @@ def sdf_errors(
     return torch.stack(errors), torch.stack(stds)
 
 
+def rule_sdf_temperature(rule: FusionRule, sdf_temperature: float | None, after=None) -> float | None:
+    """The SDF temperature a rule's fused variance gets: its own where it carries one (`shared`, fitted on its
+    fused val variance) and no method's step follows the fusion, else the run's single-view one."""
+    own = getattr(rule, "sdf_temperature", None)
+    return sdf_temperature if after is not None or own is None else own
+
+
 def calibration_across_views(
     rules: Mapping[str, FusionRule],
     views: Sequence[tuple[Tensor, Tensor, Tensor]],  # per shape: (mu [V, D], var [V, D], code [D])
@@ -114,6 +109,9 @@ def calibration_across_views(
     after: Sequence[AfterSubset] | None = None,  # per shape: a method's step after fusion
 ) -> list[dict]:
     """One row per (rule, n views): latent (and with `sdf`, SDF) calibration scores over every shape.
+
+    sdf_temperature scales every rule's propagated SDF variance, except a rule's that carries its own
+    (`rule_sdf_temperature`).
 
     Every rule fuses the same subsets of views. A shape with fewer than n views is left out of that n's
     rows; `n_shapes` says how many were scored.
@@ -131,7 +129,9 @@ def calibration_across_views(
                 fused_mu, fused_var, error = fused_errors(rule, mu, var, code, subsets[i], step)
                 latent_err.append(error.reshape(-1)), latent_std.append(marginal(fused_var).sqrt().reshape(-1))
                 if sdf is not None:
-                    e, s = sdf_errors(decoder, fused_mu, fused_var, *sdf[i], sdf_temperature)
+                    e, s = sdf_errors(
+                        decoder, fused_mu, fused_var, *sdf[i], rule_sdf_temperature(rule, sdf_temperature, after)
+                    )
                     sdf_err.append(e.reshape(-1)), sdf_std.append(s.reshape(-1))
             if not usable:
                 continue
@@ -175,7 +175,8 @@ def plot_calibration_across_views(rows: Sequence[dict], target: float = 0.05):
 
 def evaluation_rules(checkpoint, k: int) -> tuple[dict[str, FusionRule], float | None, float | None]:
     """(every fusion rule by name, latent T, SDF T) for a run: the paper's three, intersection, and `shared`
-    (with `shared`-K) where --fit-temperature stored the shared error; without it, a warning says how."""
+    (with `shared`-K, each carrying its own SDF temperature) where --fit-temperature stored the shared error;
+    without it, a warning says how."""
     import logging
 
     from ushape.fusion import (
@@ -198,8 +199,8 @@ def evaluation_rules(checkpoint, k: int) -> tuple[dict[str, FusionRule], float |
             checkpoint,
         )
         return rules, None, None
-    rules["shared"] = SharedErrorFusion(fit.shared_var, fit.view_scale)
-    rules[f"shared-{k}"] = SharedErrorFusion(fit.shared_var, fit.view_scale, k=k)
+    rules["shared"] = SharedErrorFusion(fit.shared_var, fit.view_scale, sdf_temperature=fit.sdf_temperature)
+    rules[f"shared-{k}"] = SharedErrorFusion(fit.shared_var, fit.view_scale, k=k, sdf_temperature=fit.sdf_temperature)
     return rules, *read_temperatures(checkpoint)
 
 
@@ -255,7 +256,8 @@ def table_view_calibration(rows: Sequence[dict]):
         "Table V: calibration across fused views",
         "Each test shape's views fused n at a time (n = 1: every view; else random subsets of n distinct views) "
         "by each rule, on temperature-scaled view variances, against the shape's own code (latent, per "
-        "dimension) and its ground-truth SDF samples (linearised propagation, SDF temperature applied). CE: "
+        "dimension) and its ground-truth SDF samples (linearised propagation, SDF temperature applied: the "
+        "shared rule's own, fitted on its fused val variance, the single-view one for the others). CE: "
         "calibration error; err/var: mean squared error over mean variance (1 when calibrated); cov90: "
         "coverage of the 90 % interval. Bayesian treats the views' errors as independent; shared adds back "
         "the error they share (fitted on val).",

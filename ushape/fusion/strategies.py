@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
 import torch
@@ -80,12 +81,27 @@ class SharedIncremental:
         return add_shared(self.inner.result(), self.shared_var, self.view_scale)
 
 
+def check_sdf_temperature(value) -> float | None:
+    """None, or the factor on a rule's propagated SDF variance as a float; a ValueError if not finite and > 0."""
+    if value is None:
+        return None
+    try:
+        factor = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"sdf_temperature must be a finite number > 0 or None, got {value!r}") from None
+    if not (math.isfinite(factor) and factor > 0):
+        raise ValueError(f"sdf_temperature must be a finite number > 0 or None, got {value!r}")
+    return factor
+
+
 class SharedErrorFusion:
     """Bayesian fusion that keeps the error all views of a shape share: var = S + c (sum_v var_v^-1)^-1.
 
     S [D] and c are fitted on val beside the temperature (`python reconstruct.py --fit-temperature`)
     and apply to temperature-scaled view variances; `calibrated(S, c)` gives the rule with them.
     With k, only the K lowest-trace views are fused, chosen exactly as Bayesian-K chooses them.
+    sdf_temperature: the factor on this rule's fused variance once propagated to SDF values (fitted on
+    val beside S; None: whoever propagates it applies the single-view SDF temperature).
     """
 
     def __init__(
@@ -95,12 +111,17 @@ class SharedErrorFusion:
         k: int | None = None,
         var_floor: float = 1e-8,
         source: str | None = None,
+        sdf_temperature: float | None = None,
     ) -> None:
         if var_floor <= 0:
             raise ValueError(f"var_floor must be > 0, got {var_floor}")
         self.k = None if k is None else check_k(k)
+        self.sdf_temperature = check_sdf_temperature(sdf_temperature)
         # What a summary says about the fit: where S and c came from (None until fitted).
-        self.calibration = None if shared_var is None else f"shared error S and view scale c fitted on val: {source}"
+        fitted = "shared error S, view scale c" + (
+            "" if self.sdf_temperature is None else f" and SDF factor {self.sdf_temperature:.3g}"
+        )
+        self.calibration = None if shared_var is None else f"{fitted} fitted on val: {source}"
         self.shared_var = None if shared_var is None else torch.as_tensor(shared_var, dtype=torch.float32)
         self.view_scale = float(view_scale)
         if self.shared_var is not None:
@@ -109,10 +130,15 @@ class SharedErrorFusion:
         self.name = "shared" if self.k is None else f"shared-{self.k}"
 
     def calibrated(
-        self, shared_var: Sequence[float] | Tensor, view_scale: float, source: str | None = None
+        self,
+        shared_var: Sequence[float] | Tensor,
+        view_scale: float,
+        source: str | None = None,
+        sdf_temperature: float | None = None,
     ) -> SharedErrorFusion:
-        """This rule with a fitted shared error S [D] and per-view scale c (`source`: where they were read)."""
-        return SharedErrorFusion(shared_var, view_scale, self.k, self.var_floor, source)
+        """This rule with a fitted shared error S [D], per-view scale c and SDF temperature (`source`: where
+        they were read)."""
+        return SharedErrorFusion(shared_var, view_scale, self.k, self.var_floor, source, sdf_temperature)
 
     def _fit(self) -> Tensor:
         if self.shared_var is None:

@@ -3,8 +3,15 @@
 from ushape.recalibration.temperature import (
     apply_temperature,
     fit_calibration_temperature,
+    fit_calibration_temperature_across,
     fit_temperature,
     gaussian_nll_with_temperature,
 )
 
-__all__ = ["apply_temperature", "fit_calibration_temperature", "fit_temperature", "gaussian_nll_with_temperature"]
+__all__ = [
+    "apply_temperature",
+    "fit_calibration_temperature",
+    "fit_calibration_temperature_across",
+    "fit_temperature",
+    "gaussian_nll_with_temperature",
+]

@@ -3,9 +3,15 @@
 Model: view v of shape s predicts mu_sv with error e_sv = mu_sv - z_s = e_s + e_sv', where e_s ~ N(0, S)
 is the same for all views of the shape and e_sv' ~ N(0, c var_sv) is the view's own. Then, for two
 different views of one shape, E[e_sv e_sw] = S (per dimension): S is the mean over shapes of the mean
-cross-view product, ((sum_v e_v)^2 - sum_v e_v^2) / (V (V - 1)), floored at 0. Given S, c minimises the
+cross-view product, ((sum_v e_v)^2 - sum_v e_v^2) / (V (V - 1)), floored at 0. From a val split of 10
+shapes that estimate is noisy per dimension (measured: it correlates 0.2-0.3 with the same estimate on the
+test shapes), so by default only its trace is kept, spread over the dimensions like the views' mean
+variance ("proportional": S = s mean_v var_v, one number fitted); "diagonal" keeps every dimension's
+own estimate (docs/fusion_calibration.md). Given S, c minimises the
 Gaussian NLL of the single views' errors under N(0, S + c var), so one view stays as calibrated as the
-temperature left it. `ushape.fusion.SharedErrorFusion` fuses with S + c (sum_v var_v^-1)^-1.
+temperature left it. `ushape.fusion.SharedErrorFusion` fuses with S + c (sum_v var_v^-1)^-1. The rule's own
+SDF temperature (its fused variance propagated to SDF values, fitted on val fused 1, 3 and 10 views at a
+time) is fitted by `ushape.reconstruction.temperature_store` and kept here beside S.
 """
 
 from __future__ import annotations
@@ -17,25 +23,37 @@ from typing import Any, Sequence
 import torch
 from torch import Tensor
 
+STRUCTURES = ("proportional", "diagonal")
+
 # Per-view scales c tried: 2^(k/32) from 1/256 to 4; the NLL is then refined by golden-section search.
 SCALE_RANGE = (-8.0, 2.0)
 
 
 @dataclass(frozen=True)
 class SharedError:
-    """A fitted shared error: S [D] (variance per latent dimension), the views' own scale c, shapes used."""
+    """A fitted shared error: S [D] (variance per latent dimension), the views' own scale c, shapes used,
+    and the SDF temperature of the rule's fused variance (None where it was not fitted)."""
 
     shared_var: Tensor  # [D]
     view_scale: float
     n_shapes: int
+    sdf_temperature: float | None = None
+    structure: str = "diagonal"  # how S was spread over the dimensions (STRUCTURES)
 
     def to_record(self) -> dict[str, Any]:
-        return {"var": self.shared_var.tolist(), "view_scale": self.view_scale, "n_shapes": self.n_shapes}
+        record = {"var": self.shared_var.tolist(), "view_scale": self.view_scale, "n_shapes": self.n_shapes}
+        record["structure"] = self.structure
+        return record if self.sdf_temperature is None else {**record, "sdf_temperature": self.sdf_temperature}
 
     @staticmethod
     def from_record(record: dict[str, Any]) -> SharedError:
+        sdf = record.get("sdf_temperature")
         return SharedError(
-            torch.tensor(record["var"], dtype=torch.float32), float(record["view_scale"]), int(record["n_shapes"])
+            torch.tensor(record["var"], dtype=torch.float32),
+            float(record["view_scale"]),
+            int(record["n_shapes"]),
+            None if sdf is None else float(sdf),
+            str(record.get("structure", "diagonal")),
         )
 
 
@@ -68,6 +86,15 @@ def shared_variance(
     return cross.mean(dim=0).clamp(min=0.0), int(usable.sum())
 
 
+def proportional_shared_variance(
+    shared: Tensor,  # [D] the per-dimension cross-view estimate
+    var: Tensor,  # [N, D] the views' variances
+) -> Tensor:
+    """S [D] = s mean_n var_n with s such that S keeps the estimate's trace: one number fitted, not D."""
+    mean_var = var.double().mean(dim=0)
+    return mean_var * (shared.double().sum() / mean_var.sum())
+
+
 def view_nll(error: Tensor, var: Tensor, shared: Tensor, scale: float) -> float:
     """Mean Gaussian NLL per dimension of error [N, D] under N(0, S + c var) (constant dropped)."""
     total = shared + scale * var
@@ -96,8 +123,12 @@ def fit_shared_error(
     var: Tensor,  # [N, D], temperature-scaled as the fused views will be
     target: Tensor,  # [N, D]
     groups: Sequence[str] | Tensor,  # [N] the shape each view shows
+    structure: str = "proportional",
 ) -> SharedError:
-    """S [D] and c of the model e_v = e_shape + e_view, from several views of each val shape."""
+    """S [D] and c of the model e_v = e_shape + e_view, from several views of each val shape; S spread over the
+    dimensions as `structure` says (STRUCTURES)."""
+    if structure not in STRUCTURES:
+        raise ValueError(f"structure must be one of {STRUCTURES}, got {structure!r}")
     if not (mu.shape == var.shape == target.shape) or mu.ndim != 2:
         raise ValueError(
             f"mu {tuple(mu.shape)}, var {tuple(var.shape)} and target {tuple(target.shape)} must share one shape [N, D]"
@@ -109,5 +140,7 @@ def fit_shared_error(
         raise ValueError("var must be > 0 everywhere (a variance, not a log-variance)")
     error = mu.double() - target.double()
     shared, n_shapes = shared_variance(error, groups)
+    if structure == "proportional":
+        shared = proportional_shared_variance(shared, var)
     scale = fit_view_scale(error, var.double(), shared)
-    return SharedError(shared.float(), scale, n_shapes)
+    return SharedError(shared.float(), scale, n_shapes, structure=structure)

@@ -5,12 +5,14 @@ Gaussian NLL is minimised in closed form, T = mean((z - mu)^2 / var) over every 
 dimension: the mean squared standardised error, which is 1 for a calibrated model.
 T > 1 widens over-confident predictions, T < 1 sharpens under-confident ones.
 `fit_calibration_temperature` fits the same kind of factor where the NLL is not the score (the
-propagated SDF variance), by the calibration error over a grid.
+propagated SDF variance), by the calibration error over a grid; `fit_calibration_temperature_across`
+fits one such factor to several groups at once (the worst group's calibration error is minimised).
 """
 
 from __future__ import annotations
 
 import math
+from typing import Sequence
 
 import torch
 from torch import Tensor
@@ -96,3 +98,34 @@ def fit_calibration_temperature(
     best_error, best = min(scores, key=lambda pair: (pair[0], abs(math.log(pair[1]))))
     before = calibration_error(*calibration_curve(abs_error, std, n_levels))
     return best, before, best_error
+
+
+def fit_calibration_temperature_across(
+    groups: Sequence[tuple[Tensor, Tensor]],  # per group: (|error| [P_g], std [P_g])
+    n_levels: int = 20,
+    grid: tuple[float, ...] = CALIBRATION_GRID,
+) -> tuple[float, list[float], list[float]]:
+    """The one variance factor T (std' = sqrt(T) std) whose worst calibration error over the groups is least.
+
+    For a variance that must be calibrated at several settings at once (the fused SDF variance at 1, 3
+    and 10 fused views): each group is scored on its own, and T minimises the largest of their calibration
+    errors (ties: the T closest to 1). -> (T, each group's calibration error at T = 1, at T).
+    """
+    if not groups:
+        raise ValueError("no groups to fit a temperature on: pass at least one (|error|, std) pair")
+    checked = []
+    for abs_error, std in groups:
+        abs_error, std = abs_error.reshape(-1).double(), std.reshape(-1).double()
+        if abs_error.shape != std.shape or abs_error.numel() == 0:
+            raise ValueError(
+                f"abs_error {tuple(abs_error.shape)} and std {tuple(std.shape)} must be equal and non-empty"
+            )
+        if not (torch.isfinite(abs_error).all() and torch.isfinite(std).all()) or (std < 0).any():
+            raise ValueError("abs_error and std must be finite, with std >= 0 (a standard deviation, not a log)")
+        checked.append((abs_error, std))
+
+    def errors(factor: float) -> list[float]:
+        return [calibration_error(*calibration_curve(e, s * math.sqrt(factor), n_levels)) for e, s in checked]
+
+    best = min(grid, key=lambda t: (max(errors(t)), abs(math.log(t))))
+    return best, errors(1.0), errors(best)

@@ -4,7 +4,8 @@ Bayesian fusion treats the views' errors as independent; measured, most of a vie
 every view of the shape (docs/fusion_calibration.md), so its fused variance is over-confident from a
 few views on. `python reconstruct.py --fit-temperature` fits the shared error S beside the temperature;
 once it is there, a reconstruction that names no rule uses `shared` with it (and the temperature, which
-S was fitted against), and summary.json says so under "fusion" and "fusion_calibration".
+S was fitted against, and the SDF temperature fitted on the rule's own fused variance), and summary.json
+says so under "fusion", "fusion_calibration" and "sdf_temperature".
 """
 
 from __future__ import annotations
@@ -29,7 +30,8 @@ def calibrate_fusion(fusion: Any, predictor: Predictor) -> Any:
         )
     if predictor.temperature is None:
         predictor.temperature, predictor.sdf_temperature = read_temperatures(predictor.checkpoint)
-    return fusion.calibrated(fit.shared_var, fit.view_scale, source=str(temperature_path(predictor.checkpoint)))
+    source = str(temperature_path(predictor.checkpoint))
+    return fusion.calibrated(fit.shared_var, fit.view_scale, source=source, sdf_temperature=fit.sdf_temperature)
 
 
 def default_fusion(predictor: Predictor, k: int | None = None) -> Any:

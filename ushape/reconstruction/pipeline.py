@@ -169,8 +169,9 @@ def reconstruct(
             generator,
             bf16=bf16 and settings.uncertainty == "linearised",
         )
-        if predictor.sdf_temperature is not None:  # the SDF-space recalibration (`fit_and_store_temperature`)
-            std = apply_temperature(std.square(), predictor.sdf_temperature).sqrt()
+        sdf_t = sdf_temperature(fusion, predictor, refined=refinement is not None)
+        if sdf_t is not None:  # the SDF-space recalibration (`fit_and_store_temperature`)
+            std = apply_temperature(std.square(), sdf_t).sqrt()
         std = std.numpy()
     with timer("write_mesh"):
         files = write_mesh_files(mesh, std, out_dir, "mesh", settings.std_max, settings.cmap)
@@ -205,6 +206,13 @@ def reconstruct(
         refinement,
         {"requested": settings.precision, "resolved": precision, "why": why},
     )
+
+
+def sdf_temperature(fusion: Fusion, predictor: Predictor, refined: bool = False) -> float | None:
+    """The factor on the SDF variance propagated from the fused code: the fusion rule's own where it has one
+    (`shared`, fitted on val on its fused variance) and the code was not refined, else the predictor's."""
+    own = getattr(fusion, "sdf_temperature", None)
+    return predictor.sdf_temperature if refined or own is None else own
 
 
 def refined(
@@ -330,7 +338,7 @@ def write_summary(
     summary = {
         "checkpoint": str(predictor.checkpoint),
         "temperature": predictor.temperature,
-        "sdf_temperature": predictor.sdf_temperature,
+        "sdf_temperature": sdf_temperature(fusion, predictor, refined=refinement is not None),
         "fusion": getattr(fusion, "name", type(fusion).__name__),
         "fusion_calibration": getattr(fusion, "calibration", None),
         "uncertainty": settings.uncertainty,

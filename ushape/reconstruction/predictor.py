@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Iterable, Sequence
 
@@ -123,13 +123,26 @@ def read_temperatures(checkpoint: str | Path) -> tuple[float, float | None]:
 
 
 def read_shared_error(checkpoint: str | Path) -> SharedError | None:
-    """The shared error S and view scale c stored beside a checkpoint by `fit_and_store_temperature`, or None
-    where no temperature was fitted, or it was fitted before S was (refit to get one)."""
+    """The shared error S, view scale c and the rule's SDF temperature stored beside a checkpoint by
+    `fit_and_store_temperature`, or None where no temperature was fitted, or it was fitted before S was
+    (refit to get one). A fit stored before the rule had its own SDF temperature gets the single-view one."""
     path = temperature_path(checkpoint)
     if not path.is_file():
         return None
-    record = json.loads(path.read_text()).get("shared_error")
-    return None if record is None else SharedError.from_record(record)
+    stored = json.loads(path.read_text())
+    record = stored.get("shared_error")
+    if record is None:
+        return None
+    fit = SharedError.from_record(record)
+    if fit.sdf_temperature is None and stored.get("sdf_temperature") is not None:
+        log.info(
+            "%s holds no SDF temperature for the shared rule (fitted before it had one): its fused SDF std "
+            "uses the single-view T_sdf = %.3g; refit with `python reconstruct.py --fit-temperature`",
+            path,
+            float(stored["sdf_temperature"]),
+        )
+        fit = replace(fit, sdf_temperature=float(stored["sdf_temperature"]))
+    return fit
 
 
 def run_config(run_dir: Path | None) -> dict:

@@ -7,14 +7,19 @@ Gaussians to each val shape's ground-truth SDF samples is still too small (measu
 docs/stage2_encoder.md), so a second factor, T_sdf on that variance, is fitted to its calibration error
 there, on the first views of each shape as `eval.py` scores them. Shared error: the error every view of a
 val shape shares, S [D], and the views' own scale c, on the T-scaled variances
-(`ushape.recalibration.shared_error`), for the `shared` fusion rule.
+(`ushape.recalibration.shared_error`), for the `shared` fusion rule, and that rule's own SDF temperature:
+the shared rule's fused variance is not a single view's (S moves variance between latent dimensions, so the
+decoder's Jacobian sees another mix), so its factor is fitted on it, the val views fused 1, 3 and 10 at a
+time as Table V fuses the test views, to the worst of the three calibration errors.
 `temperature.json` = {"temperature", "n_images", "nll_before", "nll_after", "shared_error": {"var",
-"view_scale", "n_shapes"}, "sdf_temperature", "sdf_calibration_before", "sdf_calibration_after",
+"view_scale", "n_shapes", "sdf_temperature", "sdf_view_counts", "sdf_calibration_before",
+"sdf_calibration_after"}, "sdf_temperature", "sdf_calibration_before", "sdf_calibration_after",
 "sdf_views", "checkpoint", "world"}.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -26,15 +31,21 @@ from ushape.data.layout import WorldIndex
 from ushape.data.sdf_dataset import sdf_points
 from ushape.decoder.artifacts import codes_file, load_codes
 from ushape.encoder.datamodule import RenderDataset
+from ushape.fusion import SharedErrorFusion
+from ushape.fusion.subsets import view_subsets
 from ushape.propagation import SDF_CLAMP, propagate_to_sdf
-from ushape.recalibration.shared_error import fit_shared_error
+from ushape.recalibration.shared_error import SharedError, fit_shared_error
 from ushape.recalibration.temperature import (
     apply_temperature,
     fit_calibration_temperature,
+    fit_calibration_temperature_across,
     fit_temperature,
     gaussian_nll_with_temperature,
 )
 from ushape.reconstruction.predictor import Predictor, temperature_path
+
+# The numbers of val views fused at a time on which the shared rule's SDF temperature is fitted (Table V's).
+SHARED_SDF_VIEW_COUNTS = (1, 3, 10)
 
 
 def val_predictions(
@@ -79,6 +90,61 @@ def sdf_errors(
     return torch.cat(errors), torch.cat(stds), len(errors)
 
 
+def fused_sdf_errors(
+    predictor: Predictor,
+    world: WorldIndex,
+    rule,  # (mu [R, n, D], var [R, n, D]) -> FusedCode, as ushape.fusion's rules
+    mu: torch.Tensor,  # [N, D]
+    var: torch.Tensor,  # [N, D], already T-scaled
+    shape_ids: list[str],
+    view_counts: tuple[int, ...] = SHARED_SDF_VIEW_COUNTS,
+    draws: int = 6,
+    n_points: int = 1024,
+    seed: int = 0,
+) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """Per view count n (with a shape of >= n views): (|error| [P], std [P]) of the linearised, clamped SDF of
+    each shape's views fused n at a time by `rule` (every view alone for n = 1, else `draws` random subsets)."""
+    groups = []
+    for n in view_counts:
+        generator = torch.Generator().manual_seed(seed + n)
+        errors, stds = [], []
+        for shape_id in dict.fromkeys(shape_ids):
+            rows = [i for i, s in enumerate(shape_ids) if s == shape_id]
+            if len(rows) < n:
+                continue
+            subsets = view_subsets(len(rows), n, draws, generator)
+            fused = rule(mu[rows][subsets], var[rows][subsets])
+            points, sdf_true = sdf_points(world, shape_id, n_points)
+            for code_mu, code_var in zip(fused.mu, fused.var):
+                mean, variance = propagate_to_sdf(
+                    predictor.decoder, code_mu, code_var, points, "linearised", clamp=SDF_CLAMP
+                )
+                errors.append((mean - sdf_true.clamp(-SDF_CLAMP, SDF_CLAMP)).abs())
+                stds.append(variance.sqrt())
+        if errors:
+            groups.append((torch.cat(errors), torch.cat(stds)))
+    return groups
+
+
+def shared_sdf_record(
+    predictor: Predictor,
+    world: WorldIndex,
+    fit: SharedError,
+    mu: torch.Tensor,  # [N, D]
+    var: torch.Tensor,  # [N, D], already T-scaled
+    shape_ids: list[str],
+) -> dict[str, Any]:
+    """The shared rule's fit with its own SDF temperature, fitted on the val views (var T-scaled) fused 1, 3
+    and 10 at a time: the factor whose worst calibration error over those view counts is least."""
+    rule = SharedErrorFusion(fit.shared_var, fit.view_scale)
+    groups = fused_sdf_errors(predictor, world, rule, mu, var, shape_ids)
+    counts = [n for n in SHARED_SDF_VIEW_COUNTS if n <= max(shape_ids.count(s) for s in set(shape_ids))]
+    sdf_temperature, before, after = fit_calibration_temperature_across(groups)
+    record = replace(fit, sdf_temperature=sdf_temperature).to_record()
+    record.update(sdf_view_counts=counts, sdf_calibration_before=before, sdf_calibration_after=after)
+    return record
+
+
 def fit_and_store_temperature(predictor: Predictor, world: str | Path | None = None) -> dict[str, Any]:
     """Fit T (and T_sdf where the world has SDF samples) on the val split, write temperature.json beside the
     checkpoint, return its content."""
@@ -93,11 +159,16 @@ def fit_and_store_temperature(predictor: Predictor, world: str | Path | None = N
         "nll_before": gaussian_nll_with_temperature(mu, var, code, 1.0),
         "nll_after": gaussian_nll_with_temperature(mu, var, code, temperature),
     }
+    scaled = apply_temperature(var, temperature)
+    shared = None
     if len(set(shape_ids)) < len(shape_ids):  # several views of a shape: what they share can be told apart
-        record["shared_error"] = fit_shared_error(mu, apply_temperature(var, temperature), code, shape_ids).to_record()
+        shared = fit_shared_error(mu, scaled, code, shape_ids)
+        record["shared_error"] = shared.to_record()
     index = WorldIndex(Path(world), category="", splits={})  # only its per-shape paths are read
     if all(index.sdf_path(s).is_file() for s in set(shape_ids)):  # a real-data world may have no SDF samples
-        error, std, views = sdf_errors(predictor, index, mu, apply_temperature(var, temperature), shape_ids)
+        if shared is not None:
+            record["shared_error"] = shared_sdf_record(predictor, index, shared, mu, scaled, shape_ids)
+        error, std, views = sdf_errors(predictor, index, mu, scaled, shape_ids)
         sdf_temperature, before, after = fit_calibration_temperature(error, std)
         record.update(
             sdf_temperature=sdf_temperature,
