@@ -11,13 +11,14 @@ import pytest
 import torch
 from torch import nn
 
+from ushape.data.augment import corrupted_box, view_seed
 from ushape.data.cameras import intrinsics, look_at_extrinsics
 from ushape.fusion.rules import FusedCode
-from ushape.planning import active_reconstruction, build_strategy
+from ushape.planning import ViewEncoder, active_reconstruction, build_strategy
 from ushape.planning.candidates import CandidateViews
 from ushape.planning.information import candidate_information, information_gain, predicted_view
 from ushape.planning.observers import build_observer
-from ushape.refinement import ObservationSettings, RefineSettings
+from ushape.refinement import ObservationSettings, RefineSettings, crop_camera
 
 SIZE = 24
 Z_TRUE = torch.tensor([1.0, -1.0, 1.5])
@@ -138,3 +139,15 @@ def test_bad_options_are_refused():
         CandidateViews("x", *map(np.stack, zip(camera("+z"))), np.zeros(3), "recorded", lambda i: None).observed(0)
     fused = FusedCode(torch.zeros(3), torch.ones(3), torch.arange(1))
     assert build_observer("none")(AxesDecoder(), fused, [0], None) == (fused, None)
+
+
+def test_a_refining_observer_reads_each_view_cut_to_the_crop_the_encoder_saw():
+    views = candidates(["+z"])
+    full = views.observed(0)
+    for scale in (1.0, 0.3):
+        seen = ViewEncoder(None, views, min_scale=scale, seed=4).observed(0)
+        top, left, h, w = corrupted_box(SIZE, SIZE, scale, view_seed(4, "axes@orbit", 0))
+        assert seen.image_hw == (h, w)
+        np.testing.assert_allclose(seen.K, crop_camera(full.K, (top, left, h, w), (h, w)))
+        torch.testing.assert_close(seen.mask, full.mask[top : top + h, left : left + w])
+        torch.testing.assert_close(seen.depth, full.depth[top : top + h, left : left + w])
