@@ -98,11 +98,12 @@ class Strategy(Protocol):
 
 @dataclass(frozen=True)
 class Step:
-    """One acquisition: the candidate taken, the fused Gaussian after it, and the scores that chose it."""
+    """One acquisition: the candidate taken, the belief after it (the fused Gaussian, or its refinement on the
+    views taken), and the scores that chose it."""
 
     view: int
-    mu: Tensor  # [D] fused mean after this view
-    var: Tensor  # [D] fused variance after this view, or [D, D] where the fusion returns a full covariance
+    mu: Tensor  # [D] the belief's mean after this view
+    var: Tensor  # [D] fused variance, or [D, D] where the fusion or a refining observer gives a full covariance
     scores: np.ndarray | None = None  # [C] the strategy's scores when this view was chosen (None: the start)
     surface: Surface | None = field(default=None, repr=False)  # the surface those scores were computed on
     seconds: float = math.nan  # wall time of the scoring that chose this view and of the belief after it
