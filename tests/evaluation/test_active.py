@@ -5,11 +5,18 @@ import math
 import pytest
 from eval_world import make_run, tiny_settings
 
-from ushape.evaluation.active import paired_gain, start_view, table_active, views_to_reach
+from ushape.evaluation.active import (
+    method_name,
+    paired_gain,
+    reference_of,
+    start_view,
+    table_active,
+    views_to_reach,
+)
 from ushape.evaluation.report import write_results
 from ushape.evaluation.runner import evaluate_all
 
-STRATEGIES = ("uncertainty", "unseen-uncertainty", "farthest", "random", "oracle")
+STRATEGIES = ("uncertainty", "unseen-uncertainty", "farthest", "random", "oracle", "information")
 
 
 @pytest.fixture(scope="module")
@@ -65,17 +72,36 @@ def test_table_a_compares_each_strategy_with_random_shape_by_shape():
     row = next(r for r in table.rows if r[2] == "uncertainty")
     assert row[3:6] == pytest.approx([0.3, 0.45, 0.65])
     # Gains over random at views 2-3: shape a (0.1 + 0.1) / 2 = 0.1, shape b (0 + 0.2) / 2 = 0.1.
-    gain, se = row[-3], row[-2]
+    gain, se = row[-4], row[-3]
     assert gain == pytest.approx(0.1) and se == pytest.approx(0.0)
-    assert row[-1] == 2  # random's mean at 2 views (0.4) is reached by the guided one at 2 (0.45)
-    assert math.isnan(next(r for r in table.rows if r[2] == "random")[-3])
+    assert row[-2] == 2  # random's mean at 2 views (0.4) is reached by the guided one at 2 (0.45)
+    assert row[-1] is None  # no step timed
+    assert math.isnan(next(r for r in table.rows if r[2] == "random")[-4])
     # Chamfer: lower is better, so the drop against random is the gain; shape b's empty view 3 (NaN) is
     # left out of its average: (0.1 + 0.1) / 2 for a, 0 for b.
     chamfer = next(r for r in table_active(rows, "cd").rows if r[2] == "uncertainty")
-    assert chamfer[3:5] == pytest.approx([0.7, 0.55]) and chamfer[-3] == pytest.approx(0.05)
+    assert chamfer[3:5] == pytest.approx([0.7, 0.55]) and chamfer[-4] == pytest.approx(0.05)
     assert views_to_reach({1: 0.1, 2: 0.3}, 0.5) is None
     assert views_to_reach({1: 0.4, 2: 0.3}, 0.35, sign=-1) == 2
     assert all(math.isnan(v) for v in paired_gain({1: [0.5]}, {1: [0.5]}))  # no view after the first to compare
+
+
+def test_a_refined_row_is_compared_with_random_refined_alike_and_timed():
+    def records(method, per_view, seconds):
+        return [
+            {"encoder": "es", "label": "Ours", "protocol": "active", "min_scale": 1.0, "method": method}
+            | {"views": k, "shape_id": s, "iou": iou, "cd": 0.1, "seconds": seconds * k}
+            for k, ious in enumerate(per_view, start=1)
+            for s, iou in zip("ab", ious)
+        ]
+
+    rows = records("random", [[0.2, 0.2], [0.2, 0.2]], 1.0) + records("random+masks", [[0.4, 0.4], [0.5, 0.5]], 2.0)
+    rows += records("information+masks", [[0.4, 0.4], [0.6, 0.7]], 3.0)
+    row = next(r for r in table_active(rows).rows if r[2] == "information+masks")
+    assert row[-4] == pytest.approx(0.15)  # against random+masks (0.5), not plain random (0.2)
+    assert row[-1] == pytest.approx(6.0)  # mean seconds of the steps after the first
+    assert reference_of("information+depth") == "random+depth" and reference_of("farthest") == "random"
+    assert method_name("information", "none") == "information" and method_name("random", "masks") == "random+masks"
 
 
 def test_table_a_why_says_what_the_choices_were_based_on(active_result):
@@ -84,6 +110,8 @@ def test_table_a_why_says_what_the_choices_were_based_on(active_result):
     assert len(rows) == 2 * 2 * len(STRATEGIES)  # one per sequence
     guided = [d for r in rows if r["method"] == "uncertainty" for d in r["decisions"]]
     assert len(guided) == 2 * 2 * 2 and all(r["decisions"] == [] for r in rows if r["method"] == "random")
+    informed = [d for r in rows if r["method"] == "information" for d in r["decisions"]]
+    assert len(informed) == 2 * 2 * 2 and all(math.isnan(d["shrink_seen_over_unseen"]) for d in informed)
     # The ellipsoid decoder reads one code dimension: fusing a view shrinks every vertex's std by one factor
     # (exactly, where the clean views all give one mean; within 3 % where crops move the mean, and the mesh).
     for row in (r for r in rows if r["method"] == "uncertainty"):

@@ -32,3 +32,6 @@ def test_active_names_what_is_wrong(sphere_world, tmp_path, capsys):
     assert main(["active", "--run", str(run), "--views", "0"]) == 2
     assert main(["active", "--run", str(run), "--candidates", "orbit", "--out", str(tmp_path / "y")]) == 2
     assert "candidates=recorded" in capsys.readouterr().err
+    assert main(["active", "--run", str(run), "--observe", "masks", "--out", str(tmp_path / "z")]) == 2
+    assert "no masks to refine on" in capsys.readouterr().err  # this world's views.npz holds cameras only
+    assert main(["active", "--run", str(run), "--observe", "masks", "--refine-size", "0"]) == 2

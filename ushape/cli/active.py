@@ -3,6 +3,7 @@
     python active.py                                   newest run, its world's first test shape, guided, 6 views
     python active.py --shape chairs_123 --strategy farthest --views 8 --min-scale 0.1
     python active.py --run outputs/runs/<date>/<run> --candidates recorded   # choose among the recorded views
+    python active.py --strategy information --observe masks   # expected information gain, refined on the masks
 
 Writes into --out: sequence.png (each view taken, the mesh coloured by its SDF std after it, the scores
 that chose the next view), views/step_K.png (what the encoder saw), step_K.ply/.glb (the mesh after K
@@ -31,6 +32,8 @@ from ushape.evaluation.plots import save_figure
 from ushape.planning import ViewEncoder, active_reconstruction, build_strategy, candidate_views
 from ushape.planning.candidates import SOURCES
 from ushape.planning.figures import sequence_figure, step_surfaces
+from ushape.planning.information import InformationGain
+from ushape.planning.observers import OBSERVERS, build_observer
 from ushape.planning.strategies import STRATEGIES
 from ushape.reconstruction.export import write_mesh_files
 from ushape.reconstruction.predictor import load_predictor
@@ -50,6 +53,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--strategy", default="uncertainty", choices=list(STRATEGIES), help="how the next view is chosen"
     )
+    parser.add_argument(
+        "--observe",
+        default="none",
+        choices=list(OBSERVERS),
+        help="after each view: none (the fused Gaussian), or refine it on every view taken (masks, depth)",
+    )
+    parser.add_argument("--refine-size", type=int, default=24, help="rays per image side (refinement, information)")
+    parser.add_argument("--refine-iterations", type=int, default=15, help="Levenberg-Marquardt steps at most")
     parser.add_argument("--views", type=int, default=6, help="views to acquire, the start view included")
     parser.add_argument("--start", type=int, default=None, help="start candidate (default: as eval.py's protocol)")
     parser.add_argument("--min-scale", type=float, default=1.0, help="crop each view to a random area in [s, 1]")
@@ -75,7 +86,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(
             f"view {step['k']}: candidate {step['view']} (azimuth {step['azimuth']:.0f}, elevation "
             f"{step['elevation']:.0f}), latent var trace {step['trace']:.3f}, "
-            f"IoU {step['iou']:.4f}, CD {step['cd']:.4f}"
+            f"IoU {step['iou']:.4f}, CD {step['cd']:.4f}, {step['seconds']:.1f} s"
         )
     print(f"{summary['strategy']} sequence of {summary['shape_id']} -> {summary['out']}")
     return 0
@@ -97,8 +108,14 @@ def run_active(args: argparse.Namespace) -> dict:
     candidates = candidate_views(world, shape_id, args.candidates, args.azimuths, args.elevations)
     start = start_view(args.seed, shape_id, len(candidates)) if args.start is None else args.start
     encode = ViewEncoder(predictor, candidates, args.min_scale, args.seed)
-    strategy = build_strategy(args.strategy, args.seed)
-    steps = active_reconstruction(candidates, encode, strategy, predictor.decoder, args.views, start)
+    if args.refine_size < 1 or args.refine_iterations < 1:
+        raise ValueError(
+            f"--refine-size and --refine-iterations must be >= 1, got {args.refine_size}, {args.refine_iterations}"
+        )
+    options = {"size": args.refine_size} if args.strategy == InformationGain.name else {}
+    strategy = build_strategy(args.strategy, args.seed, **options)
+    observer = build_observer(args.observe, size=args.refine_size, iterations=args.refine_iterations)
+    steps = active_reconstruction(candidates, encode, strategy, predictor.decoder, args.views, start, observe=observer)
     out = Path(args.out) if args.out else DEFAULT_OUT / time.strftime("%Y-%m-%d_%H-%M-%S")
     surfaces = step_surfaces(steps, predictor.decoder, candidates, args.resolution)
     records = write_steps(steps, surfaces, predictor.decoder, world, candidates, encode, args.resolution, out)
@@ -111,6 +128,7 @@ def run_active(args: argparse.Namespace) -> dict:
         "world": str(world.root),
         "checkpoint": str(predictor.checkpoint),
         "strategy": args.strategy,
+        "observe": args.observe,
         "candidates": candidates.source,
         "n_candidates": len(candidates),
         "min_scale": args.min_scale,
@@ -144,6 +162,8 @@ def write_steps(
             "trace": float(latent_trace(step.var)),
             "iou": float(scores["iou"]),
             "cd": float(scores["cd"]),
+            "seconds": float(step.seconds),
+            "fallback": step.fallback,
         }
         if surface is not None:
             std = np.sqrt(np.maximum(surface.variance, 0.0))

@@ -20,13 +20,15 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from ushape.decoder.artifacts import CodeTable
-from ushape.evaluation.active_diagnostics import decision_diagnostics, view_spread
+from ushape.evaluation.active_diagnostics import RealisedDrops, decision_diagnostics, view_spread
 from ushape.evaluation.locality import has_cameras
 from ushape.evaluation.plots import save_figure
 from ushape.evaluation.tables import Table, encoder_order
 from ushape.planning import ViewEncoder, active_reconstruction, build_strategy, candidate_views
 from ushape.planning.candidates import SOURCES
 from ushape.planning.figures import sequence_figure, step_surfaces
+from ushape.planning.information import InformationGain
+from ushape.planning.observers import OBSERVERS, FusedGaussian, build_observer
 from ushape.planning.strategies import STRATEGIES
 
 log = logging.getLogger(__name__)
@@ -46,6 +48,18 @@ def check_active_settings(settings) -> None:
         )
     if not all(0 < float(s) <= 1 for s in settings.active_scales):
         raise ValueError(f"active_scales are crop min scales in (0, 1], got {list(settings.active_scales)}")
+    if not set(settings.active_observe) <= set(OBSERVERS) or not settings.active_observe:
+        raise ValueError(f"active_observe must be some of {list(OBSERVERS)}, got {list(settings.active_observe)}")
+    if settings.active_refine_size < 1 or settings.active_refine_iterations < 1:
+        raise ValueError(
+            "active_refine_size (rays per image side) and active_refine_iterations must be >= 1, got "
+            f"{settings.active_refine_size} and {settings.active_refine_iterations}"
+        )
+
+
+def method_name(strategy: str, observe: str) -> str:
+    """A row's name in Table A: the strategy, and what the belief was refined on after each view."""
+    return strategy if observe == FusedGaussian.name else f"{strategy}+{observe}"
 
 
 def start_view(seed: int, shape_id: str, n_candidates: int) -> int:
@@ -59,9 +73,34 @@ def shape_candidates(run, settings, shape_id: str):
     )
 
 
+def observer_for(settings, name: str):
+    return build_observer(name, size=settings.active_refine_size, iterations=settings.active_refine_iterations)
+
+
+def sequence(run, settings, candidates, encode, name: str, observer, true_code):
+    """One strategy's steps on one shape (from the shared start view), under one observer."""
+    strategy = build_strategy(
+        name, settings.seed, true_code if name == "oracle" else None, **strategy_options(settings, name)
+    )
+    return active_reconstruction(
+        candidates,
+        encode,
+        strategy,
+        run.predictor.decoder,
+        settings.active_views,
+        start_view(settings.seed, candidates.shape_id, len(candidates)),
+        resolution=settings.resolution,
+        observe=observer,
+    )
+
+
+def strategy_options(settings, name: str) -> dict:
+    return {"size": settings.active_refine_size} if name == InformationGain.name else {}
+
+
 def active_records(run, settings, codes: CodeTable) -> tuple[list[dict], list[dict]]:
-    """Records: one per (shape, min scale, strategy, views 1..N), the fused code after that many views, scored.
-    Diagnostics: one per sequence, its views' spread and what its decisions were based on (Table A-why)."""
+    """Records: one per (shape, min scale, strategy and observer, views 1..N), the belief after that many views,
+    scored. Diagnostics: one per sequence, its views' spread and what its decisions were based on (Table A-why)."""
     if not run.spec.probabilistic:
         log.info("active protocol skipped for %s: it predicts no variance to plan with", run.spec.label)
         return [], []
@@ -76,34 +115,48 @@ def active_records(run, settings, codes: CodeTable) -> tuple[list[dict], list[di
     records, diagnostics = [], []
     for shape_id in tqdm(shape_ids, desc=f"{run.spec.name} active", leave=False):
         candidates = shape_candidates(run, settings, shape_id)
-        start = start_view(settings.seed, shape_id, len(candidates))
         true_code = codes.lookup(shape_id)
         for scale in settings.active_scales:
             encode = ViewEncoder(run.predictor, candidates, scale, settings.seed)
-            for name in settings.active_strategies:
-                strategy = build_strategy(name, settings.seed, true_code if name == "oracle" else None)
-                steps = active_reconstruction(
-                    candidates,
-                    encode,
-                    strategy,
-                    run.predictor.decoder,
-                    settings.active_views,
-                    start,
-                    resolution=settings.resolution,
-                )
-                row = {"encoder": run.spec.name, "label": run.spec.label, "min_scale": float(scale), "method": name}
-                for k, step in enumerate(steps, start=1):
-                    scores = run.reconstructor.scores(step.mu, shape_id)
-                    views = "-".join(str(s.view) for s in steps[:k])
-                    records.append(
-                        {**row, "protocol": PROTOCOL, "views": k, "shape_id": shape_id, "item": views}
-                        | {"iou": scores["iou"], "cd": scores["cd"]}
+            for observe in observable(settings.active_observe, candidates):
+                observer = observer_for(settings, observe)
+                for name in settings.active_strategies:
+                    steps = sequence(run, settings, candidates, encode, name, observer, true_code)
+                    row = {"encoder": run.spec.name, "label": run.spec.label, "min_scale": float(scale)}
+                    row["method"] = method_name(name, observe)
+                    records += step_records(run, row, shape_id, steps)
+                    drops = RealisedDrops(encode, true_code, run.predictor.decoder, observer)
+                    decisions = decision_diagnostics(steps, drops, run.predictor.decoder, name == InformationGain.name)
+                    diagnostics.append(
+                        {**row, "shape_id": shape_id, "spread": view_spread(steps, candidates), "decisions": decisions}
                     )
-                decisions = decision_diagnostics(steps, encode, true_code, run.predictor.decoder)
-                diagnostics.append(
-                    {**row, "shape_id": shape_id, "spread": view_spread(steps, candidates), "decisions": decisions}
-                )
     return records, diagnostics
+
+
+def observable(names, candidates) -> list[str]:
+    """The observers that can run on these candidates: refining needs their masks (a world's views.npz without
+    masks has none); the others are skipped with a warning."""
+    if candidates.observation is not None:
+        return list(names)
+    skipped = [n for n in names if n != FusedGaussian.name]
+    if skipped:
+        log.warning(
+            "active_observe %s skipped for %s: its views have no masks to refine on", skipped, candidates.shape_id
+        )
+    return [n for n in names if n == FusedGaussian.name]
+
+
+def step_records(run, row: dict, shape_id: str, steps) -> list[dict]:
+    """A record per step: the belief's code after k views scored against the shape, with the step's seconds."""
+    records = []
+    for k, step in enumerate(steps, start=1):
+        scores = run.reconstructor.scores(step.mu, shape_id)
+        views = "-".join(str(s.view) for s in steps[:k])
+        records.append(
+            {**row, "protocol": PROTOCOL, "views": k, "shape_id": shape_id, "item": views}
+            | {"iou": scores["iou"], "cd": scores["cd"], "seconds": step.seconds, "fallback": step.fallback or ""}
+        )
+    return records
 
 
 def save_active_sequence(run, settings, out_dir: Path, strategy: str = "uncertainty") -> list[Path]:
@@ -181,6 +234,18 @@ def paired_gain(curve: dict[int, list[float]], reference: dict[int, list[float]]
     return float(gains.mean()), standard_error(gains) if len(gains) > 1 else math.nan
 
 
+def step_seconds(curve: dict[int, list[float]]) -> float | None:
+    """Mean wall time of a step after the first (choosing the view and forming the belief after it)."""
+    values = [v for k, vs in curve.items() if k > 1 for v in vs if math.isfinite(v)]
+    return float(np.mean(values)) if values else None
+
+
+def reference_of(method: str) -> str:
+    """The row a method is compared with: random under the same observer (its belief refined alike)."""
+    _, plus, observe = method.partition("+")
+    return REFERENCE + plus + observe
+
+
 def table_active(records: Sequence[dict], metric: str = "iou") -> Table:
     """Table A: the metric after 1..N views per strategy (mean over shapes; sd at N), and against random."""
     name, sign = METRICS[metric]
@@ -193,21 +258,26 @@ def table_active(records: Sequence[dict], metric: str = "iou") -> Table:
         f"'gain vs random': mean per-shape {name} {'gain' if sign > 0 else 'drop'} against random over views "
         f"2-{n}, +- its standard error over shapes (positive: better than random). 'views to reach': the fewest "
         f"views whose mean {name} reaches random's at {reach} views. The oracle picks by the true code: a bound, "
-        "not a strategy.",
+        "not a strategy. 'strategy+masks' / '+depth': the belief after each view is the fused Gaussian refined on "
+        "every view taken (compared with random+masks / +depth). 's / step': mean seconds of a step after the "
+        "first (scoring the candidates, then fusing and refining).",
         ["Encoder", "min scale", "strategy", *[f"{name} {k}" for k in range(1, n + 1)], f"sd {n}", "shapes"]
-        + ["gain vs random", "s.e.", f"views to reach random@{reach}"],
+        + ["gain vs random", "s.e.", f"views to reach random@{reach}", "s / step"],
     )
+    timing = curves(records, "seconds")
     labels = dict(encoder_order([{"encoder": r["encoder"], "label": r["label"]} for r in records]))
     for (encoder, scale, method), curve in sorted(data.items(), key=lambda item: (item[0][0], -item[0][1])):
         means = {k: float(np.nanmean(v)) for k, v in curve.items()}
-        reference = data.get((encoder, scale, REFERENCE), {})
-        gain, se = paired_gain(curve, reference, sign) if method != REFERENCE else (math.nan, math.nan)
+        baseline = reference_of(method)
+        reference = data.get((encoder, scale, baseline), {})
+        gain, se = paired_gain(curve, reference, sign) if method != baseline else (math.nan, math.nan)
         target = float(np.nanmean(reference[reach])) if reach in reference else None
         last = np.asarray(curve.get(n, []), np.float64)
         table.rows.append(
             [labels.get(encoder, encoder), scale, method, *[means.get(k) for k in range(1, n + 1)]]
             + [float(np.nanstd(last, ddof=1)) if np.isfinite(last).sum() > 1 else None, len(curve.get(1, []))]
             + [gain, se, None if target is None else (views_to_reach(means, target, sign) or f"> {n}")]
+            + [step_seconds(timing.get((encoder, scale, method), {}))]
         )
     return table
 

@@ -1,9 +1,11 @@
 """Why a next-view strategy helps or not (Table A-why), measured on the sequences the active protocol runs.
 
 Per sequence: the spread of the views taken (mean angle between every two of them, about the object).
-Per decision of a strategy that scores the current mesh's uncertainty (steps 2..N):
+Per decision of a strategy that scores the current mesh's uncertainty, or the expected information gain
+(steps 2..N):
 - score vs latent-error drop: the Spearman rank correlation, over the candidates still open, between the
-  strategy's score and how much nearer the fused code would come to the shape's own code with that view.
+  strategy's score and how much nearer the belief would come to the shape's own code with that view (the
+  fused code; for a refined belief, the belief refined on that view's masks or depth as one more view).
   It peeks at every candidate's image, as the oracle does, to say whether the score knew what each view
   would bring; > 0: it did.
 - std shrink seen / unseen: on the mesh the choice was made on, the SDF std after fusing the chosen view
@@ -21,7 +23,7 @@ import torch
 
 from ushape.encoder.latent_metrics import spearman_correlation
 from ushape.evaluation.tables import Table, encoder_order
-from ushape.fusion.rules import fuse_bayesian
+from ushape.fusion.rules import FusedCode, fuse_bayesian
 from ushape.planning import CandidateViews, Step
 from ushape.planning.strategies import distances_with_each
 from ushape.propagation.linearised import propagate_linearised
@@ -37,27 +39,52 @@ def view_spread(steps: Sequence[Step], candidates: CandidateViews) -> float:
     return float(np.degrees(np.mean([np.arccos(np.clip(d[i] @ d[j], -1.0, 1.0)) for i, j in pairs])))
 
 
-def decision_diagnostics(steps: Sequence[Step], encode, true_code: torch.Tensor, decoder) -> list[dict]:
-    """One row per step chosen on a surface: its score-vs-latent-drop correlation and std shrink ratio."""
+class RealisedDrops:
+    """Per open candidate of a decision, how much nearer to the shape's own code the belief would come with that
+    view: the fused code of the views taken plus it (observer none), or the refined belief updated on its
+    masks (and depth) with the current belief as the prior (a refining observer; one view refined, not all)."""
+
+    def __init__(self, encode, true_code: torch.Tensor, decoder, observer) -> None:
+        self.encode, self.true_code, self.decoder, self.observer = encode, true_code.float(), decoder, observer
+
+    def __call__(self, steps: Sequence[Step], k: int) -> np.ndarray:  # [C], NaN where taken
+        """Drops for the decision that chose steps[k], from the belief after steps[:k]."""
+        before, n = steps[k - 1], len(steps[k].scores)
+        taken = [s.view for s in steps[:k]]
+        start = float((before.mu - self.true_code).norm())
+        if not hasattr(self.observer, "updated_mean"):
+            distances = distances_with_each(self.encode, fuse_bayesian, taken, n, self.true_code)
+        else:
+            belief = FusedCode(before.mu, before.var, torch.arange(k))
+            distances = np.full(n, np.inf)
+            for c in (c for c in range(n) if c not in taken):
+                mu = self.observer.updated_mean(self.decoder, belief, self.encode.observed(c))
+                distances[c] = float((mu - self.true_code).norm())
+        return np.where(np.isfinite(distances), start - distances, np.nan)
+
+
+def decision_diagnostics(steps: Sequence[Step], drops: RealisedDrops, decoder, scored: bool = False) -> list[dict]:
+    """One row per step chosen on a surface (or, `scored`, on any score): its score-vs-latent-drop correlation and,
+    where a surface was computed, its std shrink ratio."""
     rows = []
     for k in range(1, len(steps)):
-        step, before = steps[k], steps[k - 1]
-        if step.scores is None or step.surface is None:
+        step = steps[k]
+        if step.scores is None or (step.surface is None and not scored):
             continue
         taken = [s.view for s in steps[:k]]
         open_views = [c for c in range(len(step.scores)) if c not in taken]
-        distances = distances_with_each(encode, fuse_bayesian, taken, len(step.scores), true_code)
-        drops = float((before.mu - true_code).norm()) - distances[open_views]
+        realised = drops(steps, k)[open_views]
         correlation = (
             float(
-                spearman_correlation(torch.as_tensor(step.scores[open_views]), torch.tensor(drops, dtype=torch.float32))
+                spearman_correlation(
+                    torch.as_tensor(step.scores[open_views]), torch.tensor(realised, dtype=torch.float32)
+                )
             )
             if len(open_views) > 1
             else math.nan
         )
-        rows.append(
-            {"step": k + 1, "score_vs_latent_drop": correlation, "shrink_seen_over_unseen": _shrink(step, decoder)}
-        )
+        shrink = _shrink(step, decoder) if step.surface is not None else math.nan
+        rows.append({"step": k + 1, "score_vs_latent_drop": correlation, "shrink_seen_over_unseen": shrink})
     return rows
 
 

@@ -54,7 +54,17 @@ class Settings:
     showcase_shapes: int = 2
     code_iterations: int = 800
     active_views: int = 6
-    active_strategies: Sequence[str] = ("uncertainty", "unseen-uncertainty", "farthest", "random", "oracle")
+    active_strategies: Sequence[str] = (
+        "uncertainty",
+        "unseen-uncertainty",
+        "farthest",
+        "random",
+        "oracle",
+        "information",
+    )
+    active_observe: Sequence[str] = ("none",)  # after each view: none (fused), masks, depth (refined on the views)
+    active_refine_size: int = 24  # rays per image side, of the refinement and of the information strategy
+    active_refine_iterations: int = 15
     active_scales: Sequence[float] = (1.0, 0.1)
     active_shapes: int | None = None
     active_candidates: str = "auto"

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 import numpy as np
+import torch
 import trimesh
 from torch import Tensor
 
@@ -34,6 +35,7 @@ from ushape.data.layout import WorldIndex
 from ushape.data.rendering import RayCaster, render_mesh
 from ushape.data.shading import part_colour_fn
 from ushape.data.world import SyntheticWorld
+from ushape.refinement.views import ObservedView, world_views
 
 SOURCES = ("auto", "orbit", "recorded")
 
@@ -48,6 +50,8 @@ class CandidateViews:
     target: np.ndarray  # [3] the point the cameras look at (the object's centre)
     source: str  # "orbit" | "recorded"
     acquire: Callable[[int], Tensor] = field(repr=False)
+    # what the view shows as the refinement reads it (camera, mask, depth); None: the source has no masks
+    observation: Callable[[int], ObservedView] | None = field(default=None, repr=False)
 
     def __len__(self) -> int:
         return len(self.K)
@@ -79,6 +83,14 @@ class CandidateViews:
         if not 0 <= index < len(self):
             raise IndexError(f"candidate {index} of {len(self)}")
         return self.acquire(index)
+
+    def observed(self, index: int) -> ObservedView:
+        """The candidate's camera, mask and depth (full image): what a refinement on it compares with."""
+        if not 0 <= index < len(self):
+            raise IndexError(f"candidate {index} of {len(self)}")
+        if self.observation is None:
+            raise ValueError(f"the {self.source} candidates of {self.shape_id} have no masks to refine on")
+        return self.observation(index)
 
 
 def orbit_rows(
@@ -127,13 +139,20 @@ def orbit_views(
     mesh = trimesh.load(world.mesh_path(shape_id), process=False, force="mesh")
     caster, colour, rendered = RayCaster(mesh), part_colour_fn(shape), {}
 
-    def acquire(index: int) -> Tensor:
+    def render(index: int) -> dict:
         if index not in rendered:
-            rgba = render_mesh(caster, Ks[index], world_to_cams[index], world.image_size, colour)["rgba"]
-            rendered[index] = premultiply(rgba.astype(np.float32) / 255.0)
-        return rendered[index].clone()
+            rendered[index] = render_mesh(caster, Ks[index], world_to_cams[index], world.image_size, colour)
+        return rendered[index]
 
-    return CandidateViews(shape_id, Ks, world_to_cams, centre, "orbit", acquire)
+    def acquire(index: int) -> Tensor:
+        return premultiply(render(index)["rgba"].astype(np.float32) / 255.0)
+
+    def observation(index: int) -> ObservedView:
+        view = render(index)
+        mask, depth = torch.as_tensor(view["mask"]).float(), torch.as_tensor(view["depth"]).float()
+        return ObservedView(Ks[index], world_to_cams[index], mask, depth)
+
+    return CandidateViews(shape_id, Ks, world_to_cams, centre, "orbit", acquire, observation)
 
 
 def recorded_views(world: WorldIndex, shape_id: str) -> CandidateViews:
@@ -144,9 +163,21 @@ def recorded_views(world: WorldIndex, shape_id: str) -> CandidateViews:
     with np.load(path) as views:
         Ks, world_to_cams = views["K"].astype(np.float64), views["world_to_cam"].astype(np.float64)
         target = views["r2n2_centre"].astype(np.float64) if "r2n2_centre" in views else np.zeros(3)
+        has_masks = "masks" in views.files
     n = min(len(Ks), world.view_count(shape_id))
+
+    def observation(index: int) -> ObservedView:
+        (view,) = world_views(path, [index])
+        return view
+
     return CandidateViews(
-        shape_id, Ks[:n], world_to_cams[:n], target, "recorded", lambda i: load_rgba(world.image_path(shape_id, i))
+        shape_id,
+        Ks[:n],
+        world_to_cams[:n],
+        target,
+        "recorded",
+        lambda i: load_rgba(world.image_path(shape_id, i)),
+        observation if has_masks else None,
     )
 
 

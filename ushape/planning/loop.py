@@ -5,13 +5,16 @@
     steps = active_reconstruction(candidates, encode, UncertainSurface(), predictor.decoder, n_views=6)
     steps[k - 1].mu                                             # the fused code after k views
 
-Each step fuses every view taken so far (Bayesian by default, pose-free as in the paper), meshes the
-fused code's mean, propagates the fused latent variance to the mesh's vertices (linearised) and lets the
-strategy score every candidate not yet taken; the best is acquired next.
+Each step fuses every view taken so far (Bayesian by default, pose-free as in the paper), optionally
+refines that Gaussian on every view taken (`observe`: ushape.planning.observers; masks or depth, a
+full-covariance posterior), meshes the belief's mean, propagates its latent variance to the mesh's
+vertices (linearised) and lets the strategy score every candidate not yet taken; the best is acquired next.
 """
 
 from __future__ import annotations
 
+import math
+import time
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Callable, Protocol
@@ -21,14 +24,16 @@ import torch
 import trimesh
 from torch import Tensor
 
-from ushape.data.augment import corrupted_view, view_seed
+from ushape.data.augment import corrupted_box, corrupted_view, view_seed
 from ushape.fusion.rules import FusedCode
 from ushape.fusion.strategies import BayesianFusion
 from ushape.mesh.extraction import EmptySurfaceError, marching_cubes
 from ushape.planning.candidates import CandidateViews
 from ushape.planning.criteria import vertex_areas, visible_from
+from ushape.planning.observers import FusedGaussian
 from ushape.propagation.field import decode_field
 from ushape.propagation.linearised import propagate_linearised
+from ushape.refinement.views import ObservedView, crop_view
 
 Encode = Callable[[int], tuple[Tensor, Tensor]]  # candidate index -> (mu [D], var [D]) of its acquired image
 Fusion = Callable[[Tensor, Tensor], FusedCode]  # (mu [V, D], var [V, D]) -> fused (var [D] or [D, D])
@@ -76,6 +81,7 @@ class PlanState:
     resolution: int
     encode: Encode  # only an oracle looks at a candidate's image before it is taken
     fusion: Fusion
+    observes: str = "none"  # what the belief was refined on: none (the fused Gaussian), masks or depth
 
     @cached_property
     def surface(self) -> Surface | None:
@@ -92,13 +98,16 @@ class Strategy(Protocol):
 
 @dataclass(frozen=True)
 class Step:
-    """One acquisition: the candidate taken, the fused Gaussian after it, and the scores that chose it."""
+    """One acquisition: the candidate taken, the belief after it (the fused Gaussian, or its refinement on the
+    views taken), and the scores that chose it."""
 
     view: int
-    mu: Tensor  # [D] fused mean after this view
-    var: Tensor  # [D] fused variance after this view, or [D, D] where the fusion returns a full covariance
+    mu: Tensor  # [D] the belief's mean after this view
+    var: Tensor  # [D] fused variance, or [D, D] where the fusion or a refining observer gives a full covariance
     scores: np.ndarray | None = None  # [C] the strategy's scores when this view was chosen (None: the start)
     surface: Surface | None = field(default=None, repr=False)  # the surface those scores were computed on
+    seconds: float = math.nan  # wall time of the scoring that chose this view and of the belief after it
+    fallback: str | None = None  # why the refined belief fell back to the fused Gaussian (None: it did not)
 
 
 def active_reconstruction(
@@ -110,31 +119,42 @@ def active_reconstruction(
     start: int = 0,
     fusion: Fusion | None = None,
     resolution: int = 40,
+    observe=None,
 ) -> list[Step]:
-    """Acquire up to n_views candidates, starting from `start`, each next one the strategy's best untaken one."""
+    """Acquire up to n_views candidates, starting from `start`, each next one the strategy's best untaken one.
+
+    observe: an observer of ushape.planning.observers (default: the fused Gaussian as it is); a refining one
+    reads each view's camera, mask and depth from `encode.observed` (ViewEncoder: cropped as the encoder saw
+    it), else from the candidates."""
     if n_views < 1:
         raise ValueError(f"n_views must be >= 1, got {n_views}")
     if not 0 <= start < len(candidates):
         raise ValueError(f"start view {start} is not one of the {len(candidates)} candidates")
-    fusion = fusion or BayesianFusion()
+    fusion, observe = fusion or BayesianFusion(), observe or FusedGaussian()
+    view_of = getattr(encode, "observed", candidates.observed)
     taken, mus, variances, steps = [], [], [], []
-    view, scores, surface = start, None, None
+    view, scores, surface, scoring = start, None, None, 0.0
     while True:
+        began = time.perf_counter()
         mu, var = encode(view)
         taken.append(view)
         mus.append(mu)
         variances.append(var)
         fused = fusion(torch.stack(mus), torch.stack(variances))
-        steps.append(Step(view, fused.mu, fused.var, scores, surface))
+        belief, fell_back = observe(decoder, fused, list(taken), view_of)
+        seconds = scoring + time.perf_counter() - began
+        steps.append(Step(view, belief.mu, belief.var, scores, surface, seconds, fell_back))
         if len(taken) >= min(n_views, len(candidates)):
             return steps
-        state = PlanState(candidates, list(taken), fused, decoder, resolution, encode, fusion)
+        began = time.perf_counter()
+        state = PlanState(candidates, list(taken), belief, decoder, resolution, encode, fusion, observe.name)
         scores = np.asarray(strategy.scores(state), dtype=np.float64)
         if scores.shape != (len(candidates),):
             raise ValueError(f"strategy {strategy.name} gave {scores.shape} scores for {len(candidates)} candidates")
         surface = state.__dict__.get("surface")  # kept only if the strategy computed it
         open_scores = np.where(np.isin(np.arange(len(candidates)), taken), -np.inf, scores)
         view = int(np.argmax(open_scores))  # ties: the lowest index
+        scoring = time.perf_counter() - began
 
 
 class ViewEncoder:
@@ -154,16 +174,25 @@ class ViewEncoder:
 
     def input(self, index: int) -> Tensor:
         """RGB [3, S, S]: the acquired image, cropped and composited as the encoder gets it."""
-        name = self.candidates.shape_id if self.candidates.source == "recorded" else f"{self.candidates.shape_id}@orbit"
         p = self.predictor
         return corrupted_view(
             self.candidates.image(index),
             p.image_size,
             self.min_scale,
-            view_seed(self.seed, name, index),
+            view_seed(self.seed, self._name(), index),
             p.mask_mode,
             p.background_value,
         )
+
+    def observed(self, index: int) -> ObservedView:
+        """The candidate's camera, mask and depth cut to the very crop `input` took (outside it: unobserved)."""
+        view = self.candidates.observed(index)
+        height, width = view.image_hw
+        box = corrupted_box(height, width, self.min_scale, view_seed(self.seed, self._name(), index))
+        return crop_view(view, box, (box[2], box[3]))
+
+    def _name(self) -> str:
+        return self.candidates.shape_id if self.candidates.source == "recorded" else f"{self.candidates.shape_id}@orbit"
 
     def __call__(self, index: int) -> tuple[Tensor, Tensor]:
         if index not in self._cache:

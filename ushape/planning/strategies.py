@@ -4,6 +4,8 @@
 - unseen-uncertainty: the same over the surface no view taken so far has seen.
 - farthest: the candidate farthest (in angle about the object) from every view taken; geometry only.
 - random: a uniformly random candidate (reproducible per shape and step).
+- information: the expected information gain of a candidate's silhouette (or depth), predicted at the
+  current mean through its camera, under the current covariance (ushape.planning.information).
 - oracle: the candidate whose image brings the fused code closest to the shape's own code. It looks at
   every candidate's image and at the answer, so it is no strategy a robot could run: it bounds how much
   any choice of views can give with this encoder.
@@ -18,6 +20,7 @@ import torch
 from torch import Tensor
 
 from ushape.planning.criteria import angular_gap, uncertain_surface, unseen_uncertain_surface
+from ushape.planning.information import InformationGain
 from ushape.planning.loop import Encode, Fusion, PlanState
 
 
@@ -95,16 +98,19 @@ class LatentOracle:
 
 
 STRATEGIES = {
-    s.name: s for s in (UncertainSurface, UnseenUncertainSurface, FarthestView, RandomView)
+    s.name: s for s in (UncertainSurface, UnseenUncertainSurface, FarthestView, RandomView, InformationGain)
 }  # what a robot can run; the oracle needs the answer
 
 
-def build_strategy(name: str, seed: int = 0, true_code: Tensor | None = None):
-    """A strategy by name (one of STRATEGIES, or "oracle" given the shape's own code)."""
+def build_strategy(name: str, seed: int = 0, true_code: Tensor | None = None, **options):
+    """A strategy by name (one of STRATEGIES, or "oracle" given the shape's own code); options go to the
+    information strategy (its rays per side `size`, the residuals' stds)."""
     if name == LatentOracle.name:
         if true_code is None:
             raise ValueError("the oracle strategy needs the shape's own code (it scores against the answer)")
         return LatentOracle(true_code)
     if name not in STRATEGIES:
         raise ValueError(f"unknown strategy {name!r}; choose one of {[*STRATEGIES, LatentOracle.name]}")
+    if name == InformationGain.name:
+        return InformationGain(**options)
     return RandomView(seed) if name == RandomView.name else STRATEGIES[name]()
