@@ -85,7 +85,7 @@ def shape_rows(args, predictor, fusion, world, codes, shape_id, with_vertices):
         row["bayes"] = {"abs_error": (bayes.mu - truth).abs().tolist(), "std": bayes.var.sqrt().tolist()}
         for mode in ("masks", "depth"):
             start = time.perf_counter()
-            settings = RefineSettings(mode=mode, observation=ObservationSettings(size=args.size))
+            settings = RefineSettings(mode=mode, tolerance=args.tolerance, observation=ObservationSettings(size=args.size, grid=args.grid))
             post = refine(decoder, fused.mu, fused.var, views, settings)
             seconds = time.perf_counter() - start
             s, mesh = scores(decoder, post.mu, reference)
@@ -126,7 +126,7 @@ def sdf_rows(decoder, code, points, sdf_true):
 
 def shrink_ratio(args, decoder, fusion, mu, var, world, shape_id, mode):
     """Median std shrink, views {0} -> {0, 6}, on vertices view 6 sees over the others (mesh of the 2-view MAP)."""
-    settings = RefineSettings(mode=mode, observation=ObservationSettings(size=args.size))
+    settings = RefineSettings(mode=mode, tolerance=args.tolerance, observation=ObservationSettings(size=args.size, grid=args.grid))
     posts = []
     for chosen in ([0], [0, 6]):
         fused = fusion(mu[chosen], var[chosen])
@@ -232,7 +232,7 @@ def cut_away_std(args, predictor, fusion, world, shape_id, mode, full, truth, ke
     rgba = load_rgba(view_files(world.root, shape_id)[0])
     mu, var = predictor.encode(predictor.prepare(rgba[:, : box[2]])[None])
     fused = fusion(mu, var)
-    settings = RefineSettings(mode=mode, observation=ObservationSettings(size=args.size))
+    settings = RefineSettings(mode=mode, tolerance=args.tolerance, observation=ObservationSettings(size=args.size, grid=args.grid))
     cut = refine(decoder, fused.mu, fused.var, [crop_view(view, box, (box[2], w))], settings)
     mesh, _ = mesh_of(decoder, truth)
     uv, _ = project(np.asarray(mesh.vertices), view.K, view.world_to_cam)
@@ -248,6 +248,8 @@ def main():
     parser.add_argument("--val", type=int, default=5)
     parser.add_argument("--test", type=int, default=6)
     parser.add_argument("--size", type=int, default=24)
+    parser.add_argument("--tolerance", type=float, default=RefineSettings.tolerance, help="LM stops below this gain")
+    parser.add_argument("--grid", type=int, default=ObservationSettings.grid, help="SDF grid nodes (0: decoder)")
     parser.add_argument("--world", help="the world folder, where the run's summary does not name it yet")
     parser.add_argument("--summary", action="store_true", help="print the tables from OUT.jsonl and stop")
     args = parser.parse_args()
