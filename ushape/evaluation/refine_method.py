@@ -29,7 +29,7 @@ from ushape.data.augment import corrupted_box, load_rgba, view_seed
 from ushape.data.layout import WorldIndex
 from ushape.evaluation.methods import ReconstructionMethod
 from ushape.evaluation.views import Estimate, ViewKey, encoder_tag
-from ushape.refinement import ObservationSettings, ObservedView, RefineSettings, crop_view, refine, world_views
+from ushape.refinement import ObservedView, crop_view, refine, refine_settings, world_views
 
 CACHE_FOLDER = "refine"
 
@@ -93,15 +93,7 @@ class RefineMethod(ReconstructionMethod):
         name: str | None = None,
         label: str | None = None,
     ) -> None:
-        observation = ObservationSettings(size=size)
-        self.settings = RefineSettings(
-            mode=mode,
-            sigma_mask=sigma_mask,
-            sigma_depth=sigma_depth,
-            iterations=iterations,
-            information_scale=information_scale,
-            observation=observation,
-        )
+        self.settings = refine_settings(mode, size, sigma_mask, sigma_depth, iterations, information_scale)
         self.name = name or f"refine_{mode}"
         self.label = label or f"refine ({mode})"
 

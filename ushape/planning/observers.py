@@ -17,7 +17,7 @@ from typing import Callable, Sequence
 from torch import Tensor
 
 from ushape.fusion.rules import FusedCode
-from ushape.refinement import MODES, ObservationSettings, ObservedView, RefineSettings, refine
+from ushape.refinement import MODES, ObservedView, refine, refine_settings
 
 ViewOf = Callable[[int], ObservedView]  # candidate index -> its camera, mask and depth as acquired
 
@@ -46,14 +46,7 @@ class RefinedPosterior:
         if mode not in MODES:
             raise ValueError(f"a refined observer's mode must be one of {MODES}, got {mode!r}")
         self.name = mode
-        self.settings = RefineSettings(
-            mode=mode,
-            sigma_mask=sigma_mask,
-            sigma_depth=sigma_depth,
-            iterations=iterations,
-            information_scale=information_scale,
-            observation=ObservationSettings(size=size),
-        )
+        self.settings = refine_settings(mode, size, sigma_mask, sigma_depth, iterations, information_scale)
 
     def __call__(
         self, decoder, fused: FusedCode, taken: Sequence[int], view_of: ViewOf

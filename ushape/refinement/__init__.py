@@ -1,7 +1,7 @@
 """The fused code refined on what calibrated views show (masks, depth): MAP and full-covariance Laplace posterior."""
 
 from ushape.refinement.observation import ObservationSettings, residuals
-from ushape.refinement.posterior import MODES, Posterior, RefineSettings, refine
+from ushape.refinement.posterior import MODES, Posterior, RefineSettings, refine, refine_settings
 from ushape.refinement.views import ObservedView, crop_camera, crop_view, world_views
 
 __all__ = [
@@ -13,6 +13,7 @@ __all__ = [
     "crop_camera",
     "crop_view",
     "refine",
+    "refine_settings",
     "residuals",
     "world_views",
 ]

@@ -64,6 +64,25 @@ class RefineSettings:
     observation: ObservationSettings = field(default_factory=ObservationSettings)
 
 
+def refine_settings(
+    mode: str = "masks",
+    size: int = 32,
+    sigma_mask: float = 0.5,
+    sigma_depth: float = 0.02,
+    iterations: int = 15,
+    information_scale: float = 1.0,
+) -> RefineSettings:
+    """RefineSettings from the flat knobs a config or a command line gives (size: rays per image side)."""
+    return RefineSettings(
+        mode=mode,
+        sigma_mask=sigma_mask,
+        sigma_depth=sigma_depth,
+        iterations=iterations,
+        information_scale=information_scale,
+        observation=ObservationSettings(size=size),
+    )
+
+
 @dataclass
 class Posterior:
     """The refined Gaussian N(mu [D], cov [D, D]) and how it was reached (record() for summary.json)."""
