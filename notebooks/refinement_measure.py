@@ -14,6 +14,7 @@ information scale s is fitted on the first N val shapes and applied to the test 
 
 import argparse
 import json
+import os
 import time
 
 import numpy as np
@@ -43,7 +44,7 @@ from ushape.refinement import ObservationSettings, RefineSettings, crop_view, re
 from ushape.refinement.observation import residuals
 from ushape.refinement.posterior import prior_precision, row_weights
 
-VIEWS = {1: [0], 3: [0, 4, 8], 10: list(range(10))}
+VIEWS = {1: [0], 3: [0, 4, 8], 6: [0, 2, 4, 6, 8, 10], 10: list(range(10))}  # views spread around the orbit
 
 
 def mesh_of(decoder, code):
@@ -76,6 +77,8 @@ def shape_rows(args, predictor, fusion, world, codes, shape_id, with_vertices):
     points, sdf_true = sdf_points(world, shape_id, 256)
     own, _ = scores(decoder, truth, reference)
     for n, chosen in VIEWS.items():
+        if n not in args.views or (shape_id, n) in args.done:
+            continue
         fused = fusion(mu[chosen], var[chosen])
         views = world_views(world.views_path(shape_id), chosen)
         row = {"shape": shape_id, "views": n, "own": own, "fused": scores(decoder, fused.mu, reference)[0]}
@@ -85,7 +88,9 @@ def shape_rows(args, predictor, fusion, world, codes, shape_id, with_vertices):
         row["bayes"] = {"abs_error": (bayes.mu - truth).abs().tolist(), "std": bayes.var.sqrt().tolist()}
         for mode in ("masks", "depth"):
             start = time.perf_counter()
-            settings = RefineSettings(mode=mode, tolerance=args.tolerance, observation=ObservationSettings(size=args.size, grid=args.grid))
+            settings = RefineSettings(
+                mode=mode, tolerance=args.tolerance, observation=ObservationSettings(size=args.size, grid=args.grid)
+            )
             post = refine(decoder, fused.mu, fused.var, views, settings)
             seconds = time.perf_counter() - start
             s, mesh = scores(decoder, post.mu, reference)
@@ -126,7 +131,9 @@ def sdf_rows(decoder, code, points, sdf_true):
 
 def shrink_ratio(args, decoder, fusion, mu, var, world, shape_id, mode):
     """Median std shrink, views {0} -> {0, 6}, on vertices view 6 sees over the others (mesh of the 2-view MAP)."""
-    settings = RefineSettings(mode=mode, tolerance=args.tolerance, observation=ObservationSettings(size=args.size, grid=args.grid))
+    settings = RefineSettings(
+        mode=mode, tolerance=args.tolerance, observation=ObservationSettings(size=args.size, grid=args.grid)
+    )
     posts = []
     for chosen in ([0], [0, 6]):
         fused = fusion(mu[chosen], var[chosen])
@@ -188,6 +195,8 @@ def summarise(path):
         print(f"{mode}: information scale s = {scale:.4g} (val CE {before:.3f} at s = 1 -> {after:.3f})")
         for n in VIEWS:
             sel = [r for r in test if r["views"] == n]
+            if not sel:
+                continue
             paper = [r for r in sel if "bayes" in r]  # rows measured with the paper's rule beside the prior
             # A ratio of means: one shape's own code can be near-empty (a failed latent optimisation), and a
             # mean of per-shape ratios would then be dominated by that shape.
@@ -232,7 +241,9 @@ def cut_away_std(args, predictor, fusion, world, shape_id, mode, full, truth, ke
     rgba = load_rgba(view_files(world.root, shape_id)[0])
     mu, var = predictor.encode(predictor.prepare(rgba[:, : box[2]])[None])
     fused = fusion(mu, var)
-    settings = RefineSettings(mode=mode, tolerance=args.tolerance, observation=ObservationSettings(size=args.size, grid=args.grid))
+    settings = RefineSettings(
+        mode=mode, tolerance=args.tolerance, observation=ObservationSettings(size=args.size, grid=args.grid)
+    )
     cut = refine(decoder, fused.mu, fused.var, [crop_view(view, box, (box[2], w))], settings)
     mesh, _ = mesh_of(decoder, truth)
     uv, _ = project(np.asarray(mesh.vertices), view.K, view.world_to_cam)
@@ -251,10 +262,20 @@ def main():
     parser.add_argument("--tolerance", type=float, default=RefineSettings.tolerance, help="LM stops below this gain")
     parser.add_argument("--grid", type=int, default=ObservationSettings.grid, help="SDF grid nodes (0: decoder)")
     parser.add_argument("--world", help="the world folder, where the run's summary does not name it yet")
+    parser.add_argument(
+        "--views", default="1,3,6,10", help="views fused, comma-separated counts of " + str(list(VIEWS))
+    )
     parser.add_argument("--summary", action="store_true", help="print the tables from OUT.jsonl and stop")
     args = parser.parse_args()
     if args.summary:
         return summarise(args.out)
+    args.views = [int(n) for n in args.views.split(",")]
+    unknown = sorted(set(args.views) - set(VIEWS))
+    if unknown:
+        parser.error(f"--views {unknown}: the measured view sets are {list(VIEWS)}")
+    args.done = set()
+    if os.path.exists(args.out):
+        args.done = {(r["shape"], r["views"]) for r in map(json.loads, open(args.out)) if "views" in r}
     torch.set_num_threads(1)
     predictor = load_predictor(args.run, temperature=True)
     fusion = default_fusion(predictor)
@@ -263,6 +284,8 @@ def main():
     for split, count in (("val", args.val), ("test", args.test)):
         codes = load_codes(f"{decoder_dir}/codes_{split}.pt")
         for shape_id in world.shape_ids(split)[:count]:
+            if all((shape_id, n) in args.done for n in args.views):
+                continue
             for row in shape_rows(args, predictor, fusion, world, codes, shape_id, with_vertices=split == "test"):
                 row.update(split=split, fusion=type(fusion).__name__)
                 with open(args.out, "a") as f:

@@ -14,7 +14,7 @@ from torch import nn
 from ushape.data.cameras import look_at
 from ushape.data.rendering import pixel_rays
 from ushape.refinement import ObservationSettings, ObservedView, RefineSettings, crop_view, refine, residuals
-from ushape.refinement.observation import view_rays
+from ushape.refinement.observation import view_rays, with_jacobian
 from ushape.refinement.ray_search import ray_ball
 
 R0, C = 0.35, torch.tensor([0.1, 0.05, 0.0, 0.0], dtype=torch.float64)
@@ -217,6 +217,44 @@ def test_free_space_rows_see_matter_in_front_of_the_depth_returns_and_their_jaco
     inside = (grown.kind == 2) & (grown.r < 0)
     assert int(inside.sum()) > 10
     assert torch.allclose(grown.J[inside], -C.float().expand(int(inside.sum()), -1), atol=1e-6)
+
+
+class CountingSphere(SphereDecoder):
+    """The sphere, counting the gradient passes (forwards with a code that requires grad)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.gradient_passes = 0
+
+    def forward(self, xyz, z):
+        self.gradient_passes += int(z.requires_grad)
+        return super().forward(xyz, z)
+
+
+@pytest.mark.parametrize("depth_residual", ["surface", "trace"])
+def test_deferred_jacobian_equals_the_eager_one_and_rejected_trials_pay_no_gradient(depth_residual, monkeypatch):
+    K, w2c = cameras(1)[0]
+    view = sphere_view(K, w2c, radius(Z_TRUE))
+    obs = dataclasses.replace(OBS, free_margin=0.03, depth_residual=depth_residual)
+    bigger = Z_TRUE.clone()
+    bigger[0] += 0.8  # matter in front of the returns: every kind of row has a Jacobian
+    decoder = CountingSphere()
+    eager = residuals(decoder, bigger.float(), [view], obs, use_depth=True)
+    lazy = residuals(decoder, bigger.float(), [view], obs, use_depth=True, jacobian=False)
+    assert lazy.J.shape == (0, 4) and torch.equal(lazy.r, eager.r) and torch.equal(lazy.kind, eager.kind)
+    decoder.gradient_passes = 0
+    filled = with_jacobian(decoder, bigger.float(), lazy)
+    assert decoder.gradient_passes == 1 and torch.equal(filled.J, eager.J)
+    assert {int(k) for k in eager.kind[eager.J.abs().sum(1) > 0]} == {0, 1, 2}
+    # The LM asks for gradients at its start and once per step it takes, never at a trial it rejects: an
+    # undamped start from far away overshoots, so some trials are rejected.
+    evaluations = []
+    counted = lambda *a, **k: evaluations.append(1) or residuals(*a, **k)  # noqa: E731
+    monkeypatch.setattr("ushape.refinement.posterior.residuals", counted)
+    decoder.gradient_passes = 0
+    settings = RefineSettings(mode="depth", damping=1e-12, tolerance=1e-9, observation=obs)
+    post = refine(decoder, 3 * torch.ones(4), torch.ones(4), [view], settings)
+    assert decoder.gradient_passes <= post.iterations + 1 < len(evaluations)
 
 
 class FloaterDecoder(SphereDecoder):

@@ -81,13 +81,31 @@ class ObservationSettings:
 
 KINDS = ("masks", "depth", "free")  # a row's kind: silhouette, depth return, free space before a return
 
+# (ds/dz [N, D], ds/dx [N, 3]) at a term's Jacobian points -> its rows of dr/dz [N, D]
+RowJacobian = Callable[[Tensor, Tensor], Tensor]
+
+
+class Pending(NamedTuple):
+    """Rows of dr/dz not computed yet: their indices [N], the points [N, 3] whose SDF gradients they need, and how
+    those gradients become the rows. Every other row's Jacobian is 0."""
+
+    rows: Tensor
+    points: Tensor
+    finish: RowJacobian
+
 
 class Residuals(NamedTuple):
-    """Residuals r [R], their Jacobian dr/dz [R, D] (empty [0, D] when not asked for), per-row kind [R] (KINDS)."""
+    """Residuals r [R], their Jacobian dr/dz [R, D] ([0, D] until `with_jacobian`), per-row kind [R] (KINDS), and
+    what the Jacobian needs (`pending`): a trial step whose energy does not fall never pays for it."""
 
     r: Tensor
     J: Tensor
     kind: Tensor
+    pending: tuple[Pending, ...] = ()
+
+
+def no_rows() -> tuple[Tensor, Pending]:
+    return torch.zeros(0), Pending(torch.zeros(0, dtype=torch.long), torch.zeros(0, 3), lambda gz, gx: gz)
 
 
 def code_functions(decoder: torch.nn.Module, z: Tensor) -> tuple[PointsSDF, PointsGradients]:
@@ -124,92 +142,89 @@ def view_rays(view: ObservedView, settings: ObservationSettings) -> tuple[Tensor
 
 def silhouette_residuals(
     sdf: PointsSDF,
-    gradients: PointsGradients | None,  # None: residuals only
     view: ObservedView,
     settings: ObservationSettings,
-    latent_size: int,
     grid: SDFGrid | None = None,  # the code's SDF grid for the coarse ray samples (settings.search)
-) -> tuple[Tensor, Tensor]:
-    """Predicted minus observed occupancy r [R] at the view's observed sub-grid, and dr/dz [R, D] ([0, D] without
-    gradients)."""
+) -> tuple[Tensor, Pending]:
+    """Predicted minus observed occupancy r [R] at the view's observed sub-grid, and its Jacobian's rows: those within
+    `band` tau of the surface, dp/dz = -p (1 - p) / tau ds/dz at each ray's argmin."""
     origins, directions, pixels = view_rays(view, settings)
     target = view.mask.reshape(-1)[pixels].float()
     minimum, points = settings.minimum(sdf, origins, directions, None, grid)
     p = torch.sigmoid(-minimum / settings.tau)
-    if gradients is None:
-        return p - target, torch.zeros(0, latent_size)
-    J = torch.zeros(origins.shape[0], latent_size)
     near = (minimum.abs() < settings.band * settings.tau).nonzero().squeeze(1)
-    if near.numel():
-        _, grad_z, _ = gradients(points[near])
-        J[near] = (-(p * (1 - p))[near] / settings.tau)[:, None] * grad_z
-    return p - target, J
+    scale = -(p * (1 - p))[near] / settings.tau
+    return p - target, Pending(near, points[near], lambda gz, gx: scale[:, None] * gz)
 
 
 def free_space_residuals(
     sdf: PointsSDF,
-    gradients: PointsGradients | None,
     view: ObservedView,
     settings: ObservationSettings,
-    latent_size: int,
     grid: SDFGrid | None = None,  # the code's SDF grid for the coarse ray samples (settings.search)
-) -> tuple[Tensor, Tensor]:
+) -> tuple[Tensor, Pending]:
     """min(m, 0) [R'] of each returning ray's minimum SDF m in front of its return (`free_margin` short of it),
-    in SDF units, and dr/dz [R', D]: zero where that segment is empty, whatever the surface's slant."""
+    in SDF units, and its Jacobian's rows (ds/dz at the minimum where m < 0): zero where that segment is empty,
+    whatever the surface's slant."""
     if view.depth is None or settings.free_margin <= 0:
-        return torch.zeros(0), torch.zeros(0, latent_size)
+        return no_rows()
     origins, directions, pixels = view_rays(view, settings)
     observed = view.depth.reshape(-1)[pixels].float()
     rows = (observed > 0).nonzero().squeeze(1)
     far_limit = observed[rows] - settings.free_margin
     minimum, points = settings.minimum(sdf, origins[rows], directions[rows], far_limit, grid)
     r = minimum.clamp(max=0.0)  # an empty segment (+inf) has no residual
-    if gradients is None:
-        return r, torch.zeros(0, latent_size)
-    J = torch.zeros(rows.shape[0], latent_size)
     inside = (r < 0).nonzero().squeeze(1)
-    if inside.numel():
-        J[inside] = gradients(points[inside])[1]
-    return r, J
+    return r, Pending(inside, points[inside], lambda gz, gx: gz)
 
 
 def depth_residuals(
     sdf: PointsSDF,
-    gradients: PointsGradients | None,
     view: ObservedView,
     settings: ObservationSettings,
-    latent_size: int,
-    grid: SDFGrid | None = None,  # the code's SDF grid for the coarse ray samples (settings.search)
-) -> tuple[Tensor, Tensor]:
-    """Depth residuals r [R'] and dr/dz [R', D]: the SDF at the back-projected returns ("surface"), or traced
+    grid: SDFGrid | None = None,  # unused: depth rows need no ray search
+) -> tuple[Tensor, Pending]:
+    """Depth residuals r [R'] and their Jacobian's rows: the SDF at the back-projected returns ("surface"), or traced
     minus observed depth where the code's surface and the view both return ("trace")."""
     if view.depth is None:
-        return torch.zeros(0), torch.zeros(0, latent_size)
+        return no_rows()
     origins, directions, pixels = view_rays(view, settings)
     observed = view.depth.reshape(-1)[pixels].float()
     if settings.depth_residual == "surface":
         rows = (observed > 0).nonzero().squeeze(1)
-        if rows.numel() == 0:
-            return torch.zeros(0), torch.zeros(0, latent_size)
         x = origins[rows] + observed[rows, None] * directions[rows]
-        if gradients is None:
-            return sdf(x), torch.zeros(0, latent_size)
-        s, grad_z, _ = gradients(x)
-        return s, grad_z
+        everything = torch.arange(rows.shape[0])
+        return (sdf(x) if rows.numel() else torch.zeros(0)), Pending(everything, x, lambda gz, gx: gz)
     if settings.depth_residual != "trace":
         raise ValueError(f"depth_residual must be 'surface' or 'trace', got {settings.depth_residual!r}")
     t, hit = sphere_trace(
         lambda x, _code: sdf(x), origins, directions, 1, settings.trace_steps, settings.trace_eps, settings.bound
     )
     rows = (hit[0] & (observed > 0)).nonzero().squeeze(1)
-    if rows.numel() == 0:
-        return torch.zeros(0), torch.zeros(0, latent_size)
     depth = t[0, rows]
-    if gradients is None:
-        return depth - observed[rows], torch.zeros(0, latent_size)
-    _, grad_z, grad_x = gradients(origins[rows] + depth[:, None] * directions[rows])
-    J = depth_sensitivity(grad_z, grad_x, directions[rows], settings.min_cosine)
-    return depth - observed[rows], J
+    hits, along = origins[rows] + depth[:, None] * directions[rows], directions[rows]
+    everything = torch.arange(rows.shape[0])
+    return depth - observed[rows], Pending(
+        everything, hits, lambda gz, gx: depth_sensitivity(gz, gx, along, settings.min_cosine)
+    )
+
+
+def with_jacobian(decoder: torch.nn.Module, z: Tensor, res: Residuals) -> Residuals:
+    """`res` (the residuals at code z [D]) with dr/dz [R, D] filled in: one gradient pass over every pending point."""
+    if res.J.shape[0] == res.r.shape[0]:
+        return res
+    J = torch.zeros(res.r.shape[0], z.shape[0])
+    points = torch.cat([p.points for p in res.pending]) if res.pending else torch.zeros(0, 3)
+    if points.shape[0]:
+        _, gradients = code_functions(decoder, z.detach().float())
+        _, grad_z, grad_x = gradients(points)
+        start = 0
+        for p in res.pending:
+            end = start + p.points.shape[0]
+            if end > start:
+                J[p.rows] = p.finish(grad_z[start:end], grad_x[start:end])
+            start = end
+    return Residuals(res.r, J, res.kind)
 
 
 def residuals(
@@ -218,18 +233,19 @@ def residuals(
     views: list[ObservedView],
     settings: ObservationSettings,
     use_depth: bool,
-    jacobian: bool = True,  # False: r and kind only (J is [0, D]), for scoring candidate codes
+    jacobian: bool = True,  # False: r and kind, J [0, D] until `with_jacobian` (a trial step, a candidate code)
 ) -> Residuals:
     """Every view's silhouette residuals (and depth and free-space residuals where use_depth), stacked, with dr/dz."""
-    sdf, gradients = code_functions(decoder, z.detach().float())
+    sdf, _ = code_functions(decoder, z.detach().float())
     grid = settings.search(sdf)
-    gradients = gradients if jacobian else None
     terms = [(0, silhouette_residuals)] + ([(1, depth_residuals), (2, free_space_residuals)] if use_depth else [])
-    rs, Js, kinds = [], [], []
+    rs, kinds, pending, offset = [], [], [], 0
     for view in views:
         for kind, term in terms:
-            r, J = term(sdf, gradients, view, settings, z.shape[0], grid)
+            r, rows = term(sdf, view, settings, grid)
             rs.append(r)
-            Js.append(J)
             kinds.append(torch.full((r.shape[0],), kind))
-    return Residuals(torch.cat(rs), torch.cat(Js), torch.cat(kinds))
+            pending.append(rows._replace(rows=rows.rows + offset))
+            offset += r.shape[0]
+    res = Residuals(torch.cat(rs), torch.zeros(0, z.shape[0]), torch.cat(kinds), tuple(pending))
+    return with_jacobian(decoder, z, res) if jacobian else res

@@ -34,7 +34,7 @@ import torch
 from torch import Tensor
 
 from ushape.decoder.query import frozen
-from ushape.refinement.observation import KINDS, ObservationSettings, Residuals, residuals
+from ushape.refinement.observation import KINDS, ObservationSettings, Residuals, residuals, with_jacobian
 from ushape.refinement.views import ObservedView, check_view
 
 log = logging.getLogger(__name__)
@@ -247,7 +247,7 @@ def levenberg_marquardt(
         improved = False
         for _ in range(6):
             trial = z + torch.linalg.solve(H + lam * torch.diag(torch.diagonal(H)), -g)
-            trial_res = residuals(decoder, trial.float(), views, obs, use_depth)
+            trial_res = residuals(decoder, trial.float(), views, obs, use_depth, jacobian=False)
             trial_w = row_weights(trial_res, settings)
             trial_e = energy(trial, mu, precision, trial_res, trial_w)
             if trial_e < e:  # NaN compares False: a non-finite trial is rejected like a worse one
@@ -256,7 +256,8 @@ def levenberg_marquardt(
             lam *= 4.0
         if not improved:
             break
-        z, res, w, lam = trial, trial_res, trial_w, max(lam / 3.0, 1e-7)
+        # The Jacobian only where a step is taken: a rejected trial costs its residuals alone.
+        z, res, w, lam = trial, with_jacobian(decoder, trial.float(), trial_res), trial_w, max(lam / 3.0, 1e-7)
         done = (e - trial_e) < settings.tolerance * max(e, 1e-12)
         e = trial_e
         if done:
