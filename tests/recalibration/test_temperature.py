@@ -113,6 +113,22 @@ def test_across_groups_minimises_the_worst_group():
         assert max(after) < max(fit_calibration_temperature_across(groups, grid=(own,))[2])
 
 
+def test_across_groups_with_a_known_floor_gives_back_the_variance_scale():
+    # Errors drawn with variance T std^2 + floor^2: given the floor, the fit finds T, and calibrates only with it.
+    gen = torch.Generator().manual_seed(1)
+    floor, factor, groups = 0.05, 2.0, []
+    for spread in (0.02, 0.1):
+        std = torch.rand(30000, generator=gen, dtype=torch.float64) * spread + 0.005
+        scale = (factor * std.square() + floor**2).sqrt()
+        groups.append(((scale * torch.randn(30000, generator=gen, dtype=torch.float64)).abs(), std))
+    found, before, after = fit_calibration_temperature_across(groups, floor=floor)
+    assert found == pytest.approx(factor, rel=0.1) and max(after) < 0.01 < min(before)
+    _, _, without = fit_calibration_temperature_across(groups)
+    assert max(without) > 3 * max(after)  # no single factor makes up for a floor
+    with pytest.raises(ValueError, match="floor"):
+        fit_calibration_temperature_across(groups, floor=-0.1)
+
+
 def test_across_groups_rejects_bad_input():
     with pytest.raises(ValueError, match="at least one"):
         fit_calibration_temperature_across([])

@@ -11,6 +11,7 @@ from fake_world import write_sdf
 from ushape.data.cameras import camera_centre
 from ushape.data.layout import WorldIndex
 from ushape.fusion import BayesianKFusion
+from ushape.propagation import SDF_CLAMP
 from ushape.propagation.monte_carlo import sample_codes
 from ushape.reconstruction.cli import build_fusion, main
 from ushape.reconstruction.export import read_glb_std, read_ply_std
@@ -117,6 +118,9 @@ def test_cli_reports_skipped_images_and_bad_fusion(tiny_run, tmp_path, capsys, m
     shared = record["shared_error"]
     assert shared["sdf_view_counts"] == [1, 3] and shared["sdf_temperature"] > 0
     assert max(shared["sdf_calibration_after"]) <= max(shared["sdf_calibration_before"])
+    # The decoder's misfit at the val shapes' own codes, an RMS in clamped SDF units; this untrained decoder's
+    # is larger than its fused codes' errors, so it is not kept as the floor.
+    assert 0 < shared["sdf_decoder_misfit"] <= 2 * SDF_CLAMP and "sdf_floor" not in shared
     predictor = load_predictor(tiny_run["run"], temperature=True)
     assert predictor.sdf_temperature == record["sdf_temperature"]
     (tiny_run["checkpoint"].parent / "temperature.json").unlink()

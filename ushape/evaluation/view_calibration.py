@@ -76,25 +76,34 @@ def sdf_errors(
     points: Tensor,  # [P, 3]
     sdf_true: Tensor,  # [P]
     sdf_temperature: float | None = None,
+    sdf_floor: float | None = None,
 ) -> tuple[Tensor, Tensor]:
     """(|error| [R, P], std [R, P]) of the linearised SDF of each fused code at a shape's ground-truth samples,
-    clamped as evaluation clamps them; the SDF-space temperature scales the variance where given."""
+    clamped as evaluation clamps them; the SDF-space temperature scales the variance and the floor (a std) is
+    added to it, where given."""
     errors, stds = [], []
     truth = sdf_true.clamp(-SDF_CLAMP, SDF_CLAMP)
     for mu, var in zip(fused_mu, fused_var):
         mean, variance = propagate_to_sdf(decoder, mu, var, points, "linearised", clamp=SDF_CLAMP)
         if sdf_temperature is not None:
             variance = variance * sdf_temperature
+        if sdf_floor is not None:
+            variance = variance + sdf_floor**2
         errors.append((mean - truth).abs())
         stds.append(variance.sqrt())
     return torch.stack(errors), torch.stack(stds)
 
 
-def rule_sdf_temperature(rule: FusionRule, sdf_temperature: float | None, after=None) -> float | None:
-    """The SDF temperature a rule's fused variance gets: its own where it carries one (`shared`, fitted on its
-    fused val variance) and no method's step follows the fusion, else the run's single-view one."""
+def rule_sdf_temperature(
+    rule: FusionRule, sdf_temperature: float | None, after=None
+) -> tuple[float | None, float | None]:
+    """(SDF temperature, SDF floor) a rule's fused variance gets: its own where it carries them (`shared`, fitted
+    on its fused val variance) and no method's step follows the fusion, else the run's single-view
+    temperature and no floor."""
     own = getattr(rule, "sdf_temperature", None)
-    return sdf_temperature if after is not None or own is None else own
+    if after is not None or own is None:
+        return sdf_temperature, None
+    return own, getattr(rule, "sdf_floor", None)
 
 
 def calibration_across_views(
@@ -130,7 +139,7 @@ def calibration_across_views(
                 latent_err.append(error.reshape(-1)), latent_std.append(marginal(fused_var).sqrt().reshape(-1))
                 if sdf is not None:
                     e, s = sdf_errors(
-                        decoder, fused_mu, fused_var, *sdf[i], rule_sdf_temperature(rule, sdf_temperature, after)
+                        decoder, fused_mu, fused_var, *sdf[i], *rule_sdf_temperature(rule, sdf_temperature, after)
                     )
                     sdf_err.append(e.reshape(-1)), sdf_std.append(s.reshape(-1))
             if not usable:
@@ -199,8 +208,9 @@ def evaluation_rules(checkpoint, k: int) -> tuple[dict[str, FusionRule], float |
             checkpoint,
         )
         return rules, None, None
-    rules["shared"] = SharedErrorFusion(fit.shared_var, fit.view_scale, sdf_temperature=fit.sdf_temperature)
-    rules[f"shared-{k}"] = SharedErrorFusion(fit.shared_var, fit.view_scale, k=k, sdf_temperature=fit.sdf_temperature)
+    sdf = {"sdf_temperature": fit.sdf_temperature, "sdf_floor": fit.sdf_floor}
+    rules["shared"] = SharedErrorFusion(fit.shared_var, fit.view_scale, **sdf)
+    rules[f"shared-{k}"] = SharedErrorFusion(fit.shared_var, fit.view_scale, k=k, **sdf)
     return rules, *read_temperatures(checkpoint)
 
 

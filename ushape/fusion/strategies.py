@@ -101,7 +101,9 @@ class SharedErrorFusion:
     and apply to temperature-scaled view variances; `calibrated(S, c)` gives the rule with them.
     With k, only the K lowest-trace views are fused, chosen exactly as Bayesian-K chooses them.
     sdf_temperature: the factor on this rule's fused variance once propagated to SDF values (fitted on
-    val beside S; None: whoever propagates it applies the single-view SDF temperature).
+    val beside S; None: whoever propagates it applies the single-view SDF temperature). sdf_floor: the
+    decoder's own SDF misfit (a std, measured on val at the shapes' own codes), added to that variance:
+    T var + floor^2 (None: no floor).
     """
 
     def __init__(
@@ -112,14 +114,20 @@ class SharedErrorFusion:
         var_floor: float = 1e-8,
         source: str | None = None,
         sdf_temperature: float | None = None,
+        sdf_floor: float | None = None,
     ) -> None:
         if var_floor <= 0:
             raise ValueError(f"var_floor must be > 0, got {var_floor}")
         self.k = None if k is None else check_k(k)
         self.sdf_temperature = check_sdf_temperature(sdf_temperature)
+        if sdf_floor is not None and not (math.isfinite(float(sdf_floor)) and float(sdf_floor) >= 0):
+            raise ValueError(f"sdf_floor must be a finite std >= 0 or None, got {sdf_floor!r}")
+        self.sdf_floor = None if sdf_floor is None else float(sdf_floor)
         # What a summary says about the fit: where S and c came from (None until fitted).
-        fitted = "shared error S, view scale c" + (
-            "" if self.sdf_temperature is None else f" and SDF factor {self.sdf_temperature:.3g}"
+        fitted = (
+            "shared error S, view scale c"
+            + ("" if self.sdf_temperature is None else f" and SDF factor {self.sdf_temperature:.3g}")
+            + ("" if self.sdf_floor is None else f" (SDF floor {self.sdf_floor:.3g})")
         )
         self.calibration = None if shared_var is None else f"{fitted} fitted on val: {source}"
         self.shared_var = None if shared_var is None else torch.as_tensor(shared_var, dtype=torch.float32)
@@ -135,10 +143,11 @@ class SharedErrorFusion:
         view_scale: float,
         source: str | None = None,
         sdf_temperature: float | None = None,
+        sdf_floor: float | None = None,
     ) -> SharedErrorFusion:
-        """This rule with a fitted shared error S [D], per-view scale c and SDF temperature (`source`: where
-        they were read)."""
-        return SharedErrorFusion(shared_var, view_scale, self.k, self.var_floor, source, sdf_temperature)
+        """This rule with a fitted shared error S [D], per-view scale c, SDF temperature and floor (`source`:
+        where they were read)."""
+        return SharedErrorFusion(shared_var, view_scale, self.k, self.var_floor, source, sdf_temperature, sdf_floor)
 
     def _fit(self) -> Tensor:
         if self.shared_var is None:

@@ -32,17 +32,20 @@ SCALE_RANGE = (-8.0, 2.0)
 @dataclass(frozen=True)
 class SharedError:
     """A fitted shared error: S [D] (variance per latent dimension), the views' own scale c, shapes used,
-    and the SDF temperature of the rule's fused variance (None where it was not fitted)."""
+    and the SDF temperature and floor of the rule's fused SDF variance, T var + floor^2 (None where not fitted)."""
 
     shared_var: Tensor  # [D]
     view_scale: float
     n_shapes: int
     sdf_temperature: float | None = None
     structure: str = "diagonal"  # how S was spread over the dimensions (STRUCTURES)
+    sdf_floor: float | None = None  # the decoder's own SDF misfit (std), added to the fused SDF variance
 
     def to_record(self) -> dict[str, Any]:
         record = {"var": self.shared_var.tolist(), "view_scale": self.view_scale, "n_shapes": self.n_shapes}
         record["structure"] = self.structure
+        if self.sdf_floor is not None:
+            record["sdf_floor"] = self.sdf_floor
         return record if self.sdf_temperature is None else {**record, "sdf_temperature": self.sdf_temperature}
 
     @staticmethod
@@ -54,6 +57,7 @@ class SharedError:
             int(record["n_shapes"]),
             None if sdf is None else float(sdf),
             str(record.get("structure", "diagonal")),
+            None if record.get("sdf_floor") is None else float(record["sdf_floor"]),
         )
 
 

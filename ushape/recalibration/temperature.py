@@ -104,15 +104,21 @@ def fit_calibration_temperature_across(
     groups: Sequence[tuple[Tensor, Tensor]],  # per group: (|error| [P_g], std [P_g])
     n_levels: int = 20,
     grid: tuple[float, ...] = CALIBRATION_GRID,
+    floor: float = 0.0,
 ) -> tuple[float, list[float], list[float]]:
-    """The one variance factor T (std' = sqrt(T) std) whose worst calibration error over the groups is least.
+    """The one variance factor T (std' = sqrt(T std^2 + floor^2)) whose worst calibration error over the groups is
+    least. floor: a std every prediction carries whatever the code's, e.g. the decoder's own misfit
+    (`decoder_misfit`); 0: std' = sqrt(T) std.
 
     For a variance that must be calibrated at several settings at once (the fused SDF variance at 1, 3
     and 10 fused views): each group is scored on its own, and T minimises the largest of their calibration
-    errors (ties: the T closest to 1). -> (T, each group's calibration error at T = 1, at T).
+    errors (ties: the T closest to 1). -> (T, each group's calibration error as given (T = 1, no floor), at T
+    with the floor).
     """
     if not groups:
         raise ValueError("no groups to fit a temperature on: pass at least one (|error|, std) pair")
+    if not (math.isfinite(floor) and floor >= 0):
+        raise ValueError(f"floor must be a finite std >= 0, got {floor!r}")
     checked = []
     for abs_error, std in groups:
         abs_error, std = abs_error.reshape(-1).double(), std.reshape(-1).double()
@@ -124,8 +130,11 @@ def fit_calibration_temperature_across(
             raise ValueError("abs_error and std must be finite, with std >= 0 (a standard deviation, not a log)")
         checked.append((abs_error, std))
 
-    def errors(factor: float) -> list[float]:
-        return [calibration_error(*calibration_curve(e, s * math.sqrt(factor), n_levels)) for e, s in checked]
+    def errors(factor: float, floor: float = floor) -> list[float]:
+        return [
+            calibration_error(*calibration_curve(e, (factor * s.square() + floor**2).sqrt(), n_levels))
+            for e, s in checked
+        ]
 
     best = min(grid, key=lambda t: (max(errors(t)), abs(math.log(t))))
-    return best, errors(1.0), errors(best)
+    return best, errors(1.0, 0.0), errors(best)

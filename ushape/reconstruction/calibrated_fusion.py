@@ -31,7 +31,9 @@ def calibrate_fusion(fusion: Any, predictor: Predictor) -> Any:
     if predictor.temperature is None:
         predictor.temperature, predictor.sdf_temperature = read_temperatures(predictor.checkpoint)
     source = str(temperature_path(predictor.checkpoint))
-    return fusion.calibrated(fit.shared_var, fit.view_scale, source=source, sdf_temperature=fit.sdf_temperature)
+    return fusion.calibrated(
+        fit.shared_var, fit.view_scale, source=source, sdf_temperature=fit.sdf_temperature, sdf_floor=fit.sdf_floor
+    )
 
 
 def default_fusion(predictor: Predictor, k: int | None = None) -> Any:

@@ -339,6 +339,9 @@ def write_summary(
         "checkpoint": str(predictor.checkpoint),
         "temperature": predictor.temperature,
         "sdf_temperature": sdf_temperature(fusion, predictor, refined=refinement is not None),
+        # The decoder's own SDF misfit (a std) the calibrated SDF variance adds, T var + floor^2; the same at every
+        # point, so the mesh's std files leave it out (None: no floor, or a refined code).
+        "sdf_floor": None if refinement is not None else getattr(fusion, "sdf_floor", None),
         "fusion": getattr(fusion, "name", type(fusion).__name__),
         "fusion_calibration": getattr(fusion, "calibration", None),
         "uncertainty": settings.uncertainty,

@@ -10,11 +10,13 @@ val shape shares, S [D], and the views' own scale c, on the T-scaled variances
 (`ushape.recalibration.shared_error`), for the `shared` fusion rule, and that rule's own SDF temperature:
 the shared rule's fused variance is not a single view's (S moves variance between latent dimensions, so the
 decoder's Jacobian sees another mix), so its factor is fitted on it, the val views fused 1, 3 and 10 at a
-time as Table V fuses the test views, to the worst of the three calibration errors.
+time as Table V fuses the test views, to the worst of the three calibration errors, with a floor where it
+lowers that error: the decoder's own SDF misfit at the val shapes' own codes (an error no code's variance
+expresses), measured and added as a std, T_sdf var + floor^2.
 `temperature.json` = {"temperature", "n_images", "nll_before", "nll_after", "shared_error": {"var",
-"view_scale", "n_shapes", "sdf_temperature", "sdf_view_counts", "sdf_calibration_before",
-"sdf_calibration_after"}, "sdf_temperature", "sdf_calibration_before", "sdf_calibration_after",
-"sdf_views", "checkpoint", "world"}.
+"view_scale", "n_shapes", "sdf_temperature", "sdf_floor", "sdf_decoder_misfit", "sdf_view_counts",
+"sdf_calibration_before", "sdf_calibration_after"}, "sdf_temperature", "sdf_calibration_before",
+"sdf_calibration_after", "sdf_views", "checkpoint", "world"}.
 """
 
 from __future__ import annotations
@@ -126,22 +128,48 @@ def fused_sdf_errors(
     return groups
 
 
+def decoder_misfit(
+    predictor: Predictor,
+    world: WorldIndex,
+    code: torch.Tensor,  # [N, D] each render's shape's own code
+    shape_ids: list[str],
+    n_points: int = 1024,
+) -> float:
+    """RMS of the clamped SDF error of each shape's own code at its ground-truth samples: what the decoder gets
+    wrong even at the right code, which no latent variance can express."""
+    errors = []
+    for shape_id, own in dict(zip(shape_ids, code)).items():
+        points, sdf_true = sdf_points(world, shape_id, n_points)
+        mean, _ = propagate_to_sdf(predictor.decoder, own, torch.zeros_like(own), points, "linearised", clamp=SDF_CLAMP)
+        errors.append(mean - sdf_true.clamp(-SDF_CLAMP, SDF_CLAMP))
+    return float(torch.cat(errors).double().square().mean().sqrt())
+
+
 def shared_sdf_record(
     predictor: Predictor,
     world: WorldIndex,
     fit: SharedError,
     mu: torch.Tensor,  # [N, D]
     var: torch.Tensor,  # [N, D], already T-scaled
+    code: torch.Tensor,  # [N, D] each render's shape's own code
     shape_ids: list[str],
 ) -> dict[str, Any]:
-    """The shared rule's fit with its own SDF temperature, fitted on the val views (var T-scaled) fused 1, 3
-    and 10 at a time: the factor whose worst calibration error over those view counts is least."""
+    """The shared rule's fit with its own SDF variance, T var + floor^2: T is the factor whose worst calibration
+    error over the val views (var T-scaled) fused 1, 3 and 10 at a time is least, and the floor the decoder's own
+    misfit on the val shapes (`decoder_misfit`, measured, not fitted), kept where it lowers that worst error (a
+    decoder far from its shapes can have a misfit larger than the fused codes' errors)."""
     rule = SharedErrorFusion(fit.shared_var, fit.view_scale)
     groups = fused_sdf_errors(predictor, world, rule, mu, var, shape_ids)
     counts = [n for n in SHARED_SDF_VIEW_COUNTS if n <= max(shape_ids.count(s) for s in set(shape_ids))]
+    misfit = decoder_misfit(predictor, world, code, shape_ids)
     sdf_temperature, before, after = fit_calibration_temperature_across(groups)
-    record = replace(fit, sdf_temperature=sdf_temperature).to_record()
+    floored, _, after_floored = fit_calibration_temperature_across(groups, floor=misfit)
+    floor = misfit if max(after_floored) < max(after) else None
+    if floor is not None:
+        sdf_temperature, after = floored, after_floored
+    record = replace(fit, sdf_temperature=sdf_temperature, sdf_floor=floor).to_record()
     record.update(sdf_view_counts=counts, sdf_calibration_before=before, sdf_calibration_after=after)
+    record["sdf_decoder_misfit"] = misfit
     return record
 
 
@@ -167,7 +195,7 @@ def fit_and_store_temperature(predictor: Predictor, world: str | Path | None = N
     index = WorldIndex(Path(world), category="", splits={})  # only its per-shape paths are read
     if all(index.sdf_path(s).is_file() for s in set(shape_ids)):  # a real-data world may have no SDF samples
         if shared is not None:
-            record["shared_error"] = shared_sdf_record(predictor, index, shared, mu, scaled, shape_ids)
+            record["shared_error"] = shared_sdf_record(predictor, index, shared, mu, scaled, code, shape_ids)
         error, std, views = sdf_errors(predictor, index, mu, scaled, shape_ids)
         sdf_temperature, before, after = fit_calibration_temperature(error, std)
         record.update(
