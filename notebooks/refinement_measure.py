@@ -162,8 +162,9 @@ def calibration(rows, key, scale=None):
     return calibration_error(*calibration_curve(errors, std, 20))
 
 
-def sdf_calibration(rows, key, scale):
-    """SDF calibration error of the refined posteriors (linearised, full covariance at information scale s)."""
+def sdf_calibration(rows, key, scale, floor=0.0):
+    """SDF calibration error of the refined posteriors (linearised, full covariance at information scale s), with
+    `floor` (the decoder's own misfit, a std) added to every point's variance."""
     errors, stds = [], []
     for r in rows:
         cov = torch.linalg.inv(
@@ -171,7 +172,7 @@ def sdf_calibration(rows, key, scale):
             + scale * torch.tensor(r[key]["information"], dtype=torch.float64)
         )
         g = torch.tensor(r[key]["sdf"]["jacobian"], dtype=torch.float64)
-        stds.append(((g @ cov) * g).sum(-1).clamp_min(0).sqrt())
+        stds.append((((g @ cov) * g).sum(-1).clamp_min(0) + floor**2).sqrt())
         errors.append(torch.tensor(r[key]["sdf"]["abs_error"], dtype=torch.float64))
     return calibration_error(*calibration_curve(torch.cat(errors), torch.cat(stds), 20))
 
@@ -181,7 +182,7 @@ def below(record):
     return sum(record["energy_map"]) < sum(record["energy_own_code"])
 
 
-def summarise(path):
+def summarise(path, floor=None):
     """Tables of docs/refinement.md from the rows: IoU / ceiling, CD, std ratios, calibration at the fitted s."""
     rows = [json.loads(line) for line in open(path)]
     val, test = [r for r in rows if r["split"] == "val"], [r for r in rows if r["split"] == "test"]
@@ -218,6 +219,7 @@ def summarise(path):
                 "CE fitted s": calibration(sel, mode, scale),
                 "SDF CE s=1": sdf_calibration(sel, mode, 1.0),
                 "SDF CE fitted s": sdf_calibration(sel, mode, scale),
+                "SDF CE s=1 + floor": sdf_calibration(sel, mode, 1.0, floor) if floor else None,
                 "fallbacks": sum(r[mode]["fallback"] is not None for r in sel),
                 "seconds": np.mean([r[mode]["seconds"] for r in sel]),
                 "E(MAP) < E(own code)": f"{sum(below(r[mode]) for r in sel)}/{len(sel)}",
@@ -266,9 +268,14 @@ def main():
         "--views", default="1,3,6,10", help="views fused, comma-separated counts of " + str(list(VIEWS))
     )
     parser.add_argument("--summary", action="store_true", help="print the tables from OUT.jsonl and stop")
+    parser.add_argument(
+        "--sdf-floor",
+        type=float,
+        help="with --summary: also the SDF CE with this std added (the run's sdf_decoder_misfit in temperature.json)",
+    )
     args = parser.parse_args()
     if args.summary:
-        return summarise(args.out)
+        return summarise(args.out, args.sdf_floor)
     args.views = [int(n) for n in args.views.split(",")]
     unknown = sorted(set(args.views) - set(VIEWS))
     if unknown:
