@@ -81,17 +81,23 @@ class SharedIncremental:
         return add_shared(self.inner.result(), self.shared_var, self.view_scale)
 
 
-def check_sdf_temperature(value) -> float | None:
-    """None, or the factor on a rule's propagated SDF variance as a float; a ValueError if not finite and > 0."""
+def check_optional_number(value, name: str, zero_ok: bool = False) -> float | None:
+    """None, or value as a float; a ValueError naming it unless finite and > 0 (>= 0 with zero_ok)."""
     if value is None:
         return None
+    bound = ">= 0" if zero_ok else "> 0"
     try:
-        factor = float(value)
+        number = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"sdf_temperature must be a finite number > 0 or None, got {value!r}") from None
-    if not (math.isfinite(factor) and factor > 0):
-        raise ValueError(f"sdf_temperature must be a finite number > 0 or None, got {value!r}")
-    return factor
+        raise ValueError(f"{name} must be a finite number {bound} or None, got {value!r}") from None
+    if not (math.isfinite(number) and (number >= 0 if zero_ok else number > 0)):
+        raise ValueError(f"{name} must be a finite number {bound} or None, got {value!r}")
+    return number
+
+
+def check_sdf_temperature(value) -> float | None:
+    """None, or the factor on a rule's propagated SDF variance as a float; a ValueError if not finite and > 0."""
+    return check_optional_number(value, "sdf_temperature")
 
 
 class SharedErrorFusion:
@@ -120,9 +126,7 @@ class SharedErrorFusion:
             raise ValueError(f"var_floor must be > 0, got {var_floor}")
         self.k = None if k is None else check_k(k)
         self.sdf_temperature = check_sdf_temperature(sdf_temperature)
-        if sdf_floor is not None and not (math.isfinite(float(sdf_floor)) and float(sdf_floor) >= 0):
-            raise ValueError(f"sdf_floor must be a finite std >= 0 or None, got {sdf_floor!r}")
-        self.sdf_floor = None if sdf_floor is None else float(sdf_floor)
+        self.sdf_floor = check_optional_number(sdf_floor, "sdf_floor", zero_ok=True)
         # What a summary says about the fit: where S and c came from (None until fitted).
         fitted = (
             "shared error S, view scale c"

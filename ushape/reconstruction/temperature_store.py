@@ -32,6 +32,7 @@ from ushape import atomic
 from ushape.data.layout import WorldIndex
 from ushape.data.sdf_dataset import sdf_points
 from ushape.decoder.artifacts import codes_file, load_codes
+from ushape.decoder.query import code_sdf_fn, frozen
 from ushape.encoder.datamodule import RenderDataset
 from ushape.fusion import SharedErrorFusion
 from ushape.fusion.subsets import view_subsets
@@ -140,8 +141,9 @@ def decoder_misfit(
     errors = []
     for shape_id, own in dict(zip(shape_ids, code)).items():
         points, sdf_true = sdf_points(world, shape_id, n_points)
-        mean, _ = propagate_to_sdf(predictor.decoder, own, torch.zeros_like(own), points, "linearised", clamp=SDF_CLAMP)
-        errors.append(mean - sdf_true.clamp(-SDF_CLAMP, SDF_CLAMP))
+        with frozen(predictor.decoder):
+            sdf = code_sdf_fn(predictor.decoder, own)(points)  # the SDF itself: no latent Jacobian is needed
+        errors.append(sdf.clamp(-SDF_CLAMP, SDF_CLAMP) - sdf_true.clamp(-SDF_CLAMP, SDF_CLAMP))
     return float(torch.cat(errors).double().square().mean().sqrt())
 
 
