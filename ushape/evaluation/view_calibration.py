@@ -24,7 +24,7 @@ from ushape.evaluation.views import Estimate
 from ushape.fusion.rules import FusedCode
 from ushape.fusion.subsets import view_subsets
 from ushape.metrics.calibration import calibration_curve, calibration_error, two_sided_quantile
-from ushape.propagation import SDF_CLAMP, propagate_to_sdf
+from ushape.propagation import clamped_sdf_errors
 
 FusionRule = Callable[[Tensor, Tensor], FusedCode]  # (mu [V, D], var [V, D]) -> fused Gaussian
 # A method's step after fusion for one shape: (fused Gaussian, the shape's view indices fused) -> the one scored.
@@ -67,31 +67,6 @@ def fused_errors(
 def marginal(var: Tensor) -> Tensor:  # [R, D] or [R, D, D] -> [R, D]
     """Each dimension's own variance: a diagonal as it is, a full covariance's diagonal."""
     return var if var.ndim == 2 else torch.diagonal(var, dim1=-2, dim2=-1)
-
-
-def sdf_errors(
-    decoder,
-    fused_mu: Tensor,  # [R, D]
-    fused_var: Tensor,  # [R, D] or [R, D, D]
-    points: Tensor,  # [P, 3]
-    sdf_true: Tensor,  # [P]
-    sdf_temperature: float | None = None,
-    sdf_floor: float | None = None,
-) -> tuple[Tensor, Tensor]:
-    """(|error| [R, P], std [R, P]) of the linearised SDF of each fused code at a shape's ground-truth samples,
-    clamped as evaluation clamps them; the SDF-space temperature scales the variance and the floor (a std) is
-    added to it, where given."""
-    errors, stds = [], []
-    truth = sdf_true.clamp(-SDF_CLAMP, SDF_CLAMP)
-    for mu, var in zip(fused_mu, fused_var):
-        mean, variance = propagate_to_sdf(decoder, mu, var, points, "linearised", clamp=SDF_CLAMP)
-        if sdf_temperature is not None:
-            variance = variance * sdf_temperature
-        if sdf_floor is not None:
-            variance = variance + sdf_floor**2
-        errors.append((mean - truth).abs())
-        stds.append(variance.sqrt())
-    return torch.stack(errors), torch.stack(stds)
 
 
 def rule_sdf_temperature(
@@ -138,7 +113,7 @@ def calibration_across_views(
                 fused_mu, fused_var, error = fused_errors(rule, mu, var, code, subsets[i], step)
                 latent_err.append(error.reshape(-1)), latent_std.append(marginal(fused_var).sqrt().reshape(-1))
                 if sdf is not None:
-                    e, s = sdf_errors(
+                    e, s = clamped_sdf_errors(
                         decoder, fused_mu, fused_var, *sdf[i], *rule_sdf_temperature(rule, sdf_temperature, after)
                     )
                     sdf_err.append(e.reshape(-1)), sdf_std.append(s.reshape(-1))

@@ -88,3 +88,28 @@ def propagate_to_sdf(
         variance = torch.where(mean.abs() < clamp, variance, torch.zeros_like(variance))
         mean = mean.clamp(-clamp, clamp)
     return mean, variance
+
+
+def clamped_sdf_errors(
+    decoder,
+    mu: Tensor,  # [R, D]
+    var: Tensor,  # [R, D] or [R, D, D]
+    points: Tensor,  # [P, 3]
+    sdf_true: Tensor,  # [P]
+    temperature: float | None = None,
+    floor: float | None = None,
+) -> tuple[Tensor, Tensor]:
+    """(|error| [R, P], std [R, P]) of the linearised SDF of each Gaussian at a shape's ground-truth samples, both
+    clamped as evaluation clamps them; the SDF-space temperature scales the variance and the floor (a std) is added
+    to it, where given."""
+    errors, stds = [], []
+    truth = sdf_true.clamp(-SDF_CLAMP, SDF_CLAMP)
+    for code_mu, code_var in zip(mu, var):
+        mean, variance = propagate_to_sdf(decoder, code_mu, code_var, points, "linearised", clamp=SDF_CLAMP)
+        if temperature is not None:
+            variance = variance * temperature
+        if floor is not None:
+            variance = variance + floor**2
+        errors.append((mean - truth).abs())
+        stds.append(variance.sqrt())
+    return torch.stack(errors), torch.stack(stds)

@@ -36,7 +36,7 @@ from ushape.decoder.query import code_sdf_fn, frozen
 from ushape.encoder.datamodule import RenderDataset
 from ushape.fusion import SharedErrorFusion
 from ushape.fusion.subsets import view_subsets
-from ushape.propagation import SDF_CLAMP, propagate_to_sdf
+from ushape.propagation import SDF_CLAMP, clamped_sdf_errors, propagate_to_sdf
 from ushape.recalibration.shared_error import SharedError, fit_shared_error
 from ushape.recalibration.temperature import (
     apply_temperature,
@@ -117,13 +117,8 @@ def fused_sdf_errors(
                 continue
             subsets = view_subsets(len(rows), n, draws, generator)
             fused = rule(mu[rows][subsets], var[rows][subsets])
-            points, sdf_true = sdf_points(world, shape_id, n_points)
-            for code_mu, code_var in zip(fused.mu, fused.var):
-                mean, variance = propagate_to_sdf(
-                    predictor.decoder, code_mu, code_var, points, "linearised", clamp=SDF_CLAMP
-                )
-                errors.append((mean - sdf_true.clamp(-SDF_CLAMP, SDF_CLAMP)).abs())
-                stds.append(variance.sqrt())
+            e, s = clamped_sdf_errors(predictor.decoder, fused.mu, fused.var, *sdf_points(world, shape_id, n_points))
+            errors.append(e.reshape(-1)), stds.append(s.reshape(-1))
         if errors:
             groups.append((torch.cat(errors), torch.cat(stds)))
     return groups
