@@ -10,9 +10,12 @@ from ushape.metrics.calibration import calibration_curve, calibration_error
 from ushape.recalibration import (
     apply_temperature,
     fit_calibration_temperature_across,
+    fit_calibration_temperature_and_floor,
     fit_temperature,
+    floor_grid,
     gaussian_nll_with_temperature,
 )
+from ushape.recalibration.temperature import CALIBRATION_GRID
 
 
 def _validation(scale, n=4000, d=16, seed=0):
@@ -127,6 +130,29 @@ def test_across_groups_with_a_known_floor_gives_back_the_variance_scale():
     assert max(without) > 3 * max(after)  # no single factor makes up for a floor
     with pytest.raises(ValueError, match="floor"):
         fit_calibration_temperature_across(groups, floor=-0.1)
+
+
+def test_the_floor_and_the_scale_are_found_together():
+    # Errors drawn with variance T std^2 + floor^2 at two spreads of std: the joint fit gives back both, from a
+    # grid that holds the floor only as one of its steps (scale / 2^(1/2) away from it on either side).
+    gen = torch.Generator().manual_seed(2)
+    floor, factor, groups = 0.04, 0.5, []
+    for spread in (0.02, 0.1, 0.3):
+        std = torch.rand(8000, generator=gen, dtype=torch.float64) * spread + 0.005
+        scale = (factor * std.square() + floor**2).sqrt()
+        groups.append(((scale * torch.randn(8000, generator=gen, dtype=torch.float64)).abs(), std))
+    floors = floor_grid(0.04)
+    assert floors[0] == 0.0 and floor in floors
+    coarse = CALIBRATION_GRID[::2]  # 2^(1/4) apart, 0.5 on it
+    found, found_floor, before, after = fit_calibration_temperature_and_floor(groups, floors, grid=coarse)
+    assert found == pytest.approx(factor, rel=0.1) and found_floor == pytest.approx(floor)
+    assert max(after) < 0.01 < min(before)
+    _, floor0, _, no_floor = fit_calibration_temperature_and_floor(groups, (0.0,), grid=coarse)
+    assert floor0 == 0.0 and max(no_floor) > 3 * max(after)
+    with pytest.raises(ValueError, match="at least one"):
+        fit_calibration_temperature_and_floor(groups, ())
+    with pytest.raises(ValueError, match="scale"):
+        floor_grid(0.0)
 
 
 def test_across_groups_rejects_bad_input():

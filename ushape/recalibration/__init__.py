@@ -4,7 +4,9 @@ from ushape.recalibration.temperature import (
     apply_temperature,
     fit_calibration_temperature,
     fit_calibration_temperature_across,
+    fit_calibration_temperature_and_floor,
     fit_temperature,
+    floor_grid,
     gaussian_nll_with_temperature,
 )
 
@@ -12,6 +14,8 @@ __all__ = [
     "apply_temperature",
     "fit_calibration_temperature",
     "fit_calibration_temperature_across",
+    "fit_calibration_temperature_and_floor",
     "fit_temperature",
+    "floor_grid",
     "gaussian_nll_with_temperature",
 ]

@@ -138,3 +138,31 @@ def fit_calibration_temperature_across(
 
     best = min(grid, key=lambda t: (max(errors(t)), abs(math.log(t))))
     return best, errors(1.0, 0.0), errors(best)
+
+
+def floor_grid(scale: float, steps: int = 12) -> tuple[float, ...]:
+    """Floors tried by `fit_calibration_temperature_and_floor`: 0 and `scale` times 2^(k/2), k = -8..steps-9
+    (scale/16 to ~1.4 scale), `scale` being a std of the size the floor should have (the decoder's misfit)."""
+    if not (math.isfinite(scale) and scale > 0):
+        raise ValueError(f"the floor's scale must be a finite std > 0, got {scale!r}")
+    return (0.0, *(scale * 2.0 ** (k / 2) for k in range(-8, steps - 8)))
+
+
+def fit_calibration_temperature_and_floor(
+    groups: Sequence[tuple[Tensor, Tensor]],  # per group: (|error| [P_g], std [P_g])
+    floors: Sequence[float],
+    n_levels: int = 20,
+    grid: tuple[float, ...] = CALIBRATION_GRID,
+) -> tuple[float, float, list[float], list[float]]:
+    """The factor T and floor (std' = sqrt(T std^2 + floor^2)) whose worst calibration error over the groups is
+    least, T over `grid` and the floor over `floors` (ties: the smaller floor, then the T closest to 1).
+
+    For a variance whose error has a part no latent direction carries: the decoder's own misfit, which a
+    refined code may have pinned down in part, so the floor is fitted rather than measured. -> (T, floor,
+    each group's calibration error as given (T = 1, no floor), at (T, floor)).
+    """
+    if not floors:
+        raise ValueError("no floors to try: pass at least one (0 for none)")
+    fits = [(fit_calibration_temperature_across(groups, n_levels, grid, floor), floor) for floor in floors]
+    (temperature, before, after), floor = min(fits, key=lambda fit: (max(fit[0][2]), fit[1]))
+    return temperature, floor, before, after
