@@ -36,7 +36,11 @@ from ushape.metrics.calibration import calibration_curve, calibration_error
 from ushape.metrics.pix3d import pix3d_metrics, reference_from_mesh
 from ushape.propagation import SDF_CLAMP
 from ushape.propagation.linearised import latent_jacobian
-from ushape.recalibration.refine_information import fit_information_scale, scaled_posterior_std
+from ushape.recalibration.refine_information import (
+    fit_information_scale,
+    fit_sdf_recalibration,
+    scaled_posterior_std,
+)
 from ushape.reconstruction.calibrated_fusion import default_fusion
 from ushape.reconstruction.predictor import load_predictor, trained_decoder
 from ushape.reconstruction.visibility import hidden_over_visible, visible_vertices
@@ -162,9 +166,9 @@ def calibration(rows, key, scale=None):
     return calibration_error(*calibration_curve(errors, std, 20))
 
 
-def sdf_calibration(rows, key, scale, floor=0.0):
-    """SDF calibration error of the refined posteriors (linearised, full covariance at information scale s), with
-    `floor` (the decoder's own misfit, a std) added to every point's variance."""
+def sdf_pool(rows, key, scale):
+    """(|SDF error| [P], std [P]) of the refined posteriors over rows (linearised, full covariance at information
+    scale s)."""
     errors, stds = [], []
     for r in rows:
         cov = torch.linalg.inv(
@@ -172,9 +176,27 @@ def sdf_calibration(rows, key, scale, floor=0.0):
             + scale * torch.tensor(r[key]["information"], dtype=torch.float64)
         )
         g = torch.tensor(r[key]["sdf"]["jacobian"], dtype=torch.float64)
-        stds.append((((g @ cov) * g).sum(-1).clamp_min(0) + floor**2).sqrt())
+        stds.append(((g @ cov) * g).sum(-1).clamp_min(0).sqrt())
         errors.append(torch.tensor(r[key]["sdf"]["abs_error"], dtype=torch.float64))
-    return calibration_error(*calibration_curve(torch.cat(errors), torch.cat(stds), 20))
+    return torch.cat(errors), torch.cat(stds)
+
+
+def sdf_calibration(rows, key, scale, floor=0.0, temperature=1.0):
+    """SDF calibration error of the refined posteriors at information scale s, their variance T var + floor^2
+    (floor: e.g. the decoder's own misfit, a std)."""
+    errors, std = sdf_pool(rows, key, scale)
+    return calibration_error(*calibration_curve(errors, (temperature * std.square() + floor**2).sqrt(), 20))
+
+
+def fit_sdf(val, mode, scale):
+    """(T_sdf, floor) of the refined SDF variance at information scale s, fitted on the val rows at 1, 3, 10 views."""
+    groups = [sdf_pool(sel, mode, scale) for n in VIEWS if (sel := [r for r in val if r["views"] == n])]
+    temperature, floor, before, after = fit_sdf_recalibration(groups)
+    print(
+        f"{mode}: SDF variance at s = {scale:.4g}: T_sdf {temperature:.3g}, floor {floor:.4g} (val worst CE "
+        f"{max(before):.3f} -> {max(after):.3f})"
+    )
+    return temperature, floor
 
 
 def below(record):
@@ -194,6 +216,7 @@ def summarise(path, floor=None):
             [torch.tensor(r[mode]["information"]) for r in fit],
         )
         print(f"{mode}: information scale s = {scale:.4g} (val CE {before:.3f} at s = 1 -> {after:.3f})")
+        sdf_fit = {s: fit_sdf(fit, mode, s) for s in (1.0, scale)}
         for n in VIEWS:
             sel = [r for r in test if r["views"] == n]
             if not sel:
@@ -220,6 +243,10 @@ def summarise(path, floor=None):
                 "SDF CE s=1": sdf_calibration(sel, mode, 1.0),
                 "SDF CE fitted s": sdf_calibration(sel, mode, scale),
                 "SDF CE s=1 + floor": sdf_calibration(sel, mode, 1.0, floor) if floor else None,
+                "SDF CE s=1, val-fitted T, floor": sdf_calibration(sel, mode, 1.0, sdf_fit[1.0][1], sdf_fit[1.0][0]),
+                "SDF CE fitted s, val-fitted T, floor": sdf_calibration(
+                    sel, mode, scale, sdf_fit[scale][1], sdf_fit[scale][0]
+                ),
                 "fallbacks": sum(r[mode]["fallback"] is not None for r in sel),
                 "seconds": np.mean([r[mode]["seconds"] for r in sel]),
                 "E(MAP) < E(own code)": f"{sum(below(r[mode]) for r in sel)}/{len(sel)}",

@@ -263,3 +263,33 @@ def test_table_v_scores_a_method_on_every_fused_subset(sphere_world, sphere_code
 
 class Same(ReconstructionMethod):
     name, label = "same", "same codes"
+
+
+class HalvedRecalibrated(Halved):
+    """Halved, with the SDF variance calibration fitted for it: T_sdf = 2 gives the SDF variance back."""
+
+    name, label = "halved_t", "halved, recalibrated"
+    sdf_calibration = (2.0, None)
+
+
+def test_a_methods_own_sdf_calibration_scales_its_sdf_variance_in_tables_v_and_s1(
+    sphere_world, sphere_codes, tmp_path
+):
+    import json
+
+    record = {"temperature": 1.0, "shared_error": {"var": [0.1] * 3, "view_scale": 1.0, "n_shapes": 2}}
+    (tmp_path / "temperature.json").write_text(json.dumps(record))
+    protocols = ("view_calibration", "uncertainty")
+    result = _evaluate(sphere_world, sphere_codes, tmp_path, None, [HalvedRecalibrated()], protocols)
+    rows = {(r["encoder"], r["fusion"], r["n_views"]): r for r in result["view_calibration"]}
+    for (encoder, rule, n), plain in [(k, r) for k, r in rows.items() if k[0] == "es"]:
+        mine = rows[("es+halved_t", rule, n)]
+        assert mine["latent_error_over_var"] == pytest.approx(2 * plain["latent_error_over_var"], rel=1e-5)
+        assert mine["sdf_error_over_var"] == pytest.approx(plain["sdf_error_over_var"], rel=1e-3)
+    sdf = {
+        (r["encoder"], r["method"]): r["calibration_error"]
+        for r in result["uncertainty"]
+        if r["space"] == "sdf" and r["variance"] == "predicted"
+    }
+    for method in ("linearised",):
+        assert sdf[("es+halved_t", method)] == pytest.approx(sdf[("es", method)], abs=1e-6)

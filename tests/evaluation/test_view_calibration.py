@@ -81,6 +81,8 @@ def test_rules_of_a_run_include_shared_only_once_it_is_fitted(tmp_path):
     assert rule_sdf_temperature(rules["shared-4"], sdf_t) == (1.8, 0.01)  # the decoder's misfit floor with it
     refined = rule_sdf_temperature(rules["shared"], sdf_t, after=lambda fused, keys: fused)
     assert refined == (1.5, None)  # refined: not the fused variance the shared factor and floor were fitted on
+    fitted = rule_sdf_temperature(rules["shared"], sdf_t, after=lambda fused, keys: fused, after_sdf=(0.7, 0.004))
+    assert fitted == (0.7, 0.004)  # a refinement's own SDF variance calibration, where one was fitted for it
     fused = rules["shared"](torch.zeros(2, 2), torch.ones(2, 2))
     assert torch.allclose(fused.var, torch.tensor([0.1 + 0.25, 0.2 + 0.25]))
     row = {"label": "Ours", "fusion": "shared", "n_views": 3, "n_shapes": 2}

@@ -5,7 +5,11 @@ import math
 import pytest
 import torch
 
-from ushape.recalibration.refine_information import fit_information_scale, scaled_posterior_std
+from ushape.recalibration.refine_information import (
+    fit_information_scale,
+    fit_sdf_recalibration,
+    scaled_posterior_std,
+)
 
 
 def test_the_information_scale_of_errors_drawn_with_a_known_scale_is_recovered():
@@ -38,3 +42,19 @@ def test_scaled_std_is_the_prior_std_at_zero_and_shrinks_with_the_scale():
 def test_bad_input_says_what_to_pass():
     with pytest.raises(ValueError, match="one error, prior precision and information"):
         fit_information_scale([], [], [])
+
+
+def test_the_refined_sdf_variance_gets_back_a_known_factor_and_floor():
+    # Three groups (1, 3, 10 views: less posterior variance as views add up) whose errors carry T var + floor^2.
+    gen = torch.Generator().manual_seed(3)
+    factor, floor, groups = 2.0, 0.01, []
+    for spread in (0.03, 0.01, 0.003):
+        std = torch.rand(8000, generator=gen, dtype=torch.float64) * spread + 1e-4
+        scale = (factor * std.square() + floor**2).sqrt()
+        groups.append(((scale * torch.randn(8000, generator=gen, dtype=torch.float64)).abs(), std))
+    found, found_floor, before, after = fit_sdf_recalibration(groups)
+    # The floors tried are 2^(1/2) apart (scaled by the errors' RMS): the fit lands within a step of each.
+    assert found_floor == pytest.approx(floor, rel=0.45) and found == pytest.approx(factor, rel=0.45)
+    assert max(after) < 0.03 and min(before) > 0.15  # within a grid step of calibrated, from far over-confident
+    with pytest.raises(ValueError, match="at least one"):
+        fit_sdf_recalibration([])

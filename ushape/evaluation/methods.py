@@ -42,6 +42,10 @@ class ReconstructionMethod:
 
     name: str = ""
     label: str = ""
+    # (T_sdf, floor) of the SDF variance propagated from this method's Gaussians, T_sdf var + floor^2, where it
+    # was fitted for them on val (a refined posterior is not the encoder's Gaussian the run's T_sdf was
+    # fitted on); None: the run's single-view T_sdf and no floor.
+    sdf_calibration: tuple[float, float | None] | None = None
 
     def encodings(self, run: EncoderRun, encodings: Encodings, min_scale: float) -> Encodings:
         """The per-view Gaussians [N, D] the protocols fuse for these views (default: the encoder's own)."""
@@ -57,6 +61,15 @@ class ReconstructionMethod:
     def changes_fused(self) -> bool:
         """Whether `after_fusion` is overridden (the identity is skipped, and a fusion-only protocol can tell)."""
         return type(self).after_fusion is not ReconstructionMethod.after_fusion
+
+
+def sdf_variance_calibration(run) -> tuple[float | None, float | None]:
+    """(T_sdf, floor) for the SDF variance of the Gaussians a run reconstructs with: its method's own where
+    fitted (`ReconstructionMethod.sdf_calibration`), else the run's single-view T_sdf and no floor."""
+    method = run.method
+    if method is not None and method.changes_fused and method.sdf_calibration is not None:
+        return method.sdf_calibration
+    return run.predictor.sdf_temperature, None
 
 
 def per_view(context, encodings: Encodings, min_scale: float, done: dict[ViewKey, Estimate] | None = None) -> Encodings:

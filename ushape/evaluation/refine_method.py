@@ -29,6 +29,7 @@ from ushape.data.augment import corrupted_box, load_rgba, view_seed
 from ushape.data.layout import WorldIndex
 from ushape.evaluation.methods import ReconstructionMethod
 from ushape.evaluation.views import Estimate, ViewKey, encoder_tag
+from ushape.fusion.strategies import check_optional_number
 from ushape.refinement import ObservedView, crop_view, refine, refine_settings, world_views
 
 CACHE_FOLDER = "refine"
@@ -80,7 +81,9 @@ class RefineMethod(ReconstructionMethod):
     """Refinement on the views (conf/method/refine_masks.yaml, refine_depth.yaml): mode masks or depth, size
     rays per image side, the residuals' stds, the iterations and the information scale s of the Laplace
     covariance (Sigma^-1 + s J^T W J)^-1 (1: every ray counted as independent; a value fitted on val with
-    ushape.recalibration.refine_information) (see ushape.refinement.RefineSettings)."""
+    ushape.recalibration.refine_information) (see ushape.refinement.RefineSettings); sdf_temperature and
+    sdf_floor, the posterior's SDF variance T_sdf var + floor^2 (fitted on val with
+    `refine_information.fit_sdf_recalibration`; None: the run's single-view T_sdf)."""
 
     def __init__(
         self,
@@ -90,10 +93,16 @@ class RefineMethod(ReconstructionMethod):
         sigma_depth: float = 0.02,
         iterations: int = 15,
         information_scale: float = 1.0,
+        sdf_temperature: float | None = None,
+        sdf_floor: float | None = None,
         name: str | None = None,
         label: str | None = None,
     ) -> None:
         self.settings = refine_settings(mode, size, sigma_mask, sigma_depth, iterations, information_scale)
+        temperature = check_optional_number(sdf_temperature, "sdf_temperature")
+        floor = check_optional_number(sdf_floor, "sdf_floor", zero_ok=True)
+        if temperature is not None or floor is not None:
+            self.sdf_calibration = (1.0 if temperature is None else temperature, floor)
         self.name = name or f"refine_{mode}"
         self.label = label or f"refine ({mode})"
 

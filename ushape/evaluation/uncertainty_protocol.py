@@ -118,10 +118,12 @@ def sdf_rows(
     n_levels: int = 20,
     methods: tuple[str, ...] = PROPAGATION_METHODS,
     sdf_temperature: float | None = None,
+    sdf_floor: float | None = None,
 ) -> tuple[list, dict]:
     """SDF-space ES / NLL per region and calibration error, per (variance variant, propagation method).
 
-    `sdf_temperature` (`fit_and_store_temperature`'s, fitted on val) scales the predicted SDF variance.
+    `sdf_temperature` (`fit_and_store_temperature`'s, fitted on val) scales the predicted SDF variance, and
+    `sdf_floor` (a std, fitted with it for a method's Gaussians) is added to it: T_sdf var + floor^2.
     """
     encodings = encodings.first_views(views_per_shape)
     pools: dict[tuple[str, str], list[tuple[Tensor, Tensor, Tensor]]] = {}
@@ -137,6 +139,8 @@ def sdf_rows(
                 )
                 if variant == "predicted" and sdf_temperature is not None:
                     variance = apply_temperature(variance, sdf_temperature)
+                if variant == "predicted" and sdf_floor is not None:
+                    variance = variance + sdf_floor**2
                 pools.setdefault((variant, method), []).append((mean, variance, sdf_true))
     rows, curves = [], {}
     for (variant, method), parts in pools.items():

@@ -70,13 +70,15 @@ def marginal(var: Tensor) -> Tensor:  # [R, D] or [R, D, D] -> [R, D]
 
 
 def rule_sdf_temperature(
-    rule: FusionRule, sdf_temperature: float | None, after=None
+    rule: FusionRule, sdf_temperature: float | None, after=None, after_sdf: tuple | None = None
 ) -> tuple[float | None, float | None]:
-    """(SDF temperature, SDF floor) a rule's fused variance gets: its own where it carries them (`shared`, fitted
-    on its fused val variance) and no method's step follows the fusion, else the run's single-view
-    temperature and no floor."""
+    """(SDF temperature, SDF floor) a rule's fused variance gets: after a method's step, the method's own where
+    fitted (`after_sdf`), else the run's single-view temperature and no floor; with no step, the rule's own
+    where it carries them (`shared`, fitted on its fused val variance), else the same."""
+    if after is not None:
+        return after_sdf if after_sdf is not None else (sdf_temperature, None)
     own = getattr(rule, "sdf_temperature", None)
-    if after is not None or own is None:
+    if own is None:
         return sdf_temperature, None
     return own, getattr(rule, "sdf_floor", None)
 
@@ -91,11 +93,12 @@ def calibration_across_views(
     decoder=None,
     sdf_temperature: float | None = None,
     after: Sequence[AfterSubset] | None = None,  # per shape: a method's step after fusion
+    after_sdf: tuple[float, float | None] | None = None,  # (T_sdf, floor) fitted for the step's Gaussians
 ) -> list[dict]:
     """One row per (rule, n views): latent (and with `sdf`, SDF) calibration scores over every shape.
 
-    sdf_temperature scales every rule's propagated SDF variance, except a rule's that carries its own
-    (`rule_sdf_temperature`).
+    sdf_temperature scales every rule's propagated SDF variance, except a rule's that carries its own and,
+    after a method's step, the method's own `after_sdf` where given (`rule_sdf_temperature`).
 
     Every rule fuses the same subsets of views. A shape with fewer than n views is left out of that n's
     rows; `n_shapes` says how many were scored.
@@ -113,9 +116,8 @@ def calibration_across_views(
                 fused_mu, fused_var, error = fused_errors(rule, mu, var, code, subsets[i], step)
                 latent_err.append(error.reshape(-1)), latent_std.append(marginal(fused_var).sqrt().reshape(-1))
                 if sdf is not None:
-                    e, s = clamped_sdf_errors(
-                        decoder, fused_mu, fused_var, *sdf[i], *rule_sdf_temperature(rule, sdf_temperature, after)
-                    )
+                    calibration = rule_sdf_temperature(rule, sdf_temperature, after, after_sdf)
+                    e, s = clamped_sdf_errors(decoder, fused_mu, fused_var, *sdf[i], *calibration)
                     sdf_err.append(e.reshape(-1)), sdf_std.append(s.reshape(-1))
             if not usable:
                 continue
@@ -228,6 +230,7 @@ def view_calibration_protocol(run, settings, encodings, codes, draws: int = 6, a
         decoder=decoder,
         sdf_temperature=sdf_t,
         after=None if after is None else steps,
+        after_sdf=None if after is None or run.method is None else run.method.sdf_calibration,
     )
     log_fallbacks(run.spec.name, fallbacks, "Table V fused view subsets")
     return [{"encoder": run.spec.name, "label": run.spec.label, **row} for row in rows]

@@ -8,6 +8,9 @@ one for correlated residuals (an effective number of observations): the posterio
 (Sigma^-1 + s J^T W J)^-1 with a scale s in (0, 1], chosen on val shapes so that the calibration error
 of |z* - z_true| against the posterior's marginal std is smallest. The MAP is not refitted (s only
 scales the curvature at it); `RefineSettings.information_scale` carries s.
+
+The SDF variance propagated from that posterior is recalibrated on its own (`fit_sdf_recalibration`): a
+factor and a floor, T_sdf var + floor^2, fitted on the val shapes' SDF samples at 1, 3 and 10 views.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import torch
 from torch import Tensor
 
 from ushape.metrics.calibration import calibration_curve, calibration_error
+from ushape.recalibration.temperature import fit_calibration_temperature_and_floor, floor_grid
 
 # Scales tried: 2^(-k/4), k = 0..48 (1 down to 2^-12).
 SCALE_GRID = tuple(2.0 ** (-k / 4) for k in range(49))
@@ -53,3 +57,23 @@ def fit_information_scale(
     scores = [(score(s), -math.log(s), s) for s in grid]
     best_error, _, best = min(scores)
     return best, score(1.0), best_error
+
+
+def fit_sdf_recalibration(
+    groups: Sequence[tuple[Tensor, Tensor]],  # per number of views refined on: (|SDF error| [P], SDF std [P])
+    n_levels: int = 20,
+) -> tuple[float, float, list[float], list[float]]:
+    """(T_sdf, floor, calibration error per group as given, at (T_sdf, floor)) of the refined posterior's SDF
+    variance, T_sdf var + floor^2, fitted on val shapes refined on 1, 3 and 10 views (the worst group's error
+    is minimised).
+
+    The refined code's SDF error has a part no direction of its posterior carries (the decoder cannot draw
+    the shape exactly; where the views pin the visible surface, less of it is left than at the shape's own
+    code), so a floor is fitted beside the factor, on a grid scaled by the RMS of the val errors themselves.
+    """
+    if not groups:
+        raise ValueError("no refined val shapes to fit the SDF variance on: pass at least one (|error|, std) group")
+    errors = torch.cat([e.reshape(-1).double() for e, _ in groups])
+    scale = float(errors.square().mean().sqrt())
+    floors = floor_grid(scale) if scale > 0 else (0.0,)
+    return fit_calibration_temperature_and_floor(groups, floors, n_levels)

@@ -8,6 +8,7 @@ uncertainty_protocol.latent_rows)."""
 
 from __future__ import annotations
 
+from ushape.evaluation.methods import sdf_variance_calibration
 from ushape.evaluation.plugin import Output, Protocol
 from ushape.evaluation.uncertainty_protocol import (
     curves_to_json,
@@ -36,6 +37,7 @@ class Uncertainty(Protocol):
         run, settings = context.run, context.settings
         encodings, codes = context.views(1.0), context.split_codes()
         rows, latent_curves = latent_rows(run.spec, encodings, codes, settings.calibration_levels)
+        sdf_temperature, sdf_floor = sdf_variance_calibration(run)
         sdf, sdf_curves = sdf_rows(
             run.spec,
             context.views(1.0, self.sdf_views),
@@ -46,7 +48,8 @@ class Uncertainty(Protocol):
             self.sdf_clamp,
             self.sdf_views,
             settings.calibration_levels,
-            sdf_temperature=run.predictor.sdf_temperature,
+            sdf_temperature=sdf_temperature,
+            sdf_floor=sdf_floor,
         )
         for name in SHAPE_PROTOCOLS:
             if context.asked(name):
