@@ -16,7 +16,12 @@ from ushape.data.cameras import intrinsics, look_at_extrinsics
 from ushape.fusion.rules import FusedCode
 from ushape.planning import ViewEncoder, active_reconstruction, build_strategy
 from ushape.planning.candidates import CandidateViews
-from ushape.planning.information import candidate_information, information_gain, predicted_view
+from ushape.planning.information import (
+    candidate_information,
+    information_gain,
+    predicted_view,
+    surface_variance_drop,
+)
 from ushape.planning.observers import build_observer
 from ushape.refinement import ObservationSettings, RefineSettings, crop_camera
 
@@ -65,6 +70,27 @@ def test_the_gain_is_the_brute_force_log_det_drop():
         information_gain(cov, torch.zeros(4, 4))
 
 
+def test_the_surface_score_is_the_brute_force_drop_of_area_weighted_sdf_variance():
+    gen = torch.Generator().manual_seed(1)
+    root = torch.randn(5, 5, generator=gen, dtype=torch.float64)
+    cov = root @ root.T + 0.1 * torch.eye(5, dtype=torch.float64)
+    J = torch.randn(7, 5, generator=gen, dtype=torch.float64)
+    A = J.T @ torch.diag(torch.rand(7, generator=gen, dtype=torch.float64)) @ J
+    G, area = torch.randn(30, 5, generator=gen, dtype=torch.float64), torch.rand(30, generator=gen, dtype=torch.float64)
+    after = torch.linalg.inv(torch.linalg.inv(cov) + A)
+    variance = lambda c: ((G @ c) * G).sum(-1)  # noqa: E731  each vertex's linearised SDF variance
+    expected = float((area * (variance(cov) - variance(after))).sum())
+    metric = G.T @ (area[:, None] * G)
+    assert surface_variance_drop(cov, A, metric) == pytest.approx(expected, rel=1e-9)
+    diagonal = torch.tensor([0.5, 2.0, 1.0, 3.0, 0.1], dtype=torch.float64)
+    after = torch.linalg.inv(torch.diag(1 / diagonal) + A)
+    expected = float((area * (variance(torch.diag(diagonal)) - variance(after))).sum())
+    assert surface_variance_drop(diagonal, A, metric) == pytest.approx(expected, rel=1e-9)
+    assert surface_variance_drop(cov, torch.zeros(5, 5), metric) == 0.0
+    with pytest.raises(ValueError, match="alike"):
+        surface_variance_drop(cov, A, torch.zeros(4, 4))
+
+
 def test_a_camera_that_sees_no_surface_adds_no_information():
     settings = RefineSettings(observation=ObservationSettings(size=SIZE))
     K, w2c = camera("away")
@@ -93,6 +119,17 @@ def test_after_refining_it_takes_the_view_that_constrains_the_unpinned_dimension
     # The refined belief after both views recovers the axes the two outlines show, to a third of a pixel
     # (a pixel is 0.07 here; 0.25 in the code is 0.025 in an axis).
     torch.testing.assert_close(steps[1].mu, Z_TRUE, atol=0.25, rtol=0)
+
+
+def test_the_surface_score_also_takes_the_view_of_the_unpinned_axis():
+    """Scored by the SDF variance it would take off the surface, +x (the z axis, unpinned) beats -z."""
+    views = candidates(["+z", "-z", "+x"])
+    encode = lambda i: (torch.zeros(3), torch.ones(3))  # noqa: E731
+    strategy = build_strategy("information-surface", size=SIZE)
+    observer = build_observer("masks", size=SIZE, iterations=20)
+    steps = active_reconstruction(views, encode, strategy, AxesDecoder(), 2, start=0, observe=observer)
+    assert [s.view for s in steps] == [0, 2]
+    assert steps[1].scores[2] > 3.0 * steps[1].scores[1] > 0 and steps[1].surface is not None
 
 
 def test_a_predicted_depth_also_constrains_the_axis_along_the_view():

@@ -27,7 +27,7 @@ from ushape.evaluation.tables import Table, encoder_order
 from ushape.planning import ViewEncoder, active_reconstruction, build_strategy, candidate_views
 from ushape.planning.candidates import SOURCES
 from ushape.planning.figures import sequence_figure, step_surfaces
-from ushape.planning.information import InformationGain
+from ushape.planning.information import INFORMATION_STRATEGIES
 from ushape.planning.observers import OBSERVERS, FusedGaussian, build_observer
 from ushape.planning.strategies import STRATEGIES
 
@@ -95,7 +95,7 @@ def sequence(run, settings, candidates, encode, name: str, observer, true_code):
 
 
 def strategy_options(settings, name: str) -> dict:
-    return {"size": settings.active_refine_size} if name == InformationGain.name else {}
+    return {"size": settings.active_refine_size} if name in INFORMATION_STRATEGIES else {}
 
 
 def active_records(run, settings, codes: CodeTable) -> tuple[list[dict], list[dict]]:
@@ -126,7 +126,9 @@ def active_records(run, settings, codes: CodeTable) -> tuple[list[dict], list[di
                     row["method"] = method_name(name, observe)
                     records += step_records(run, row, shape_id, steps)
                     drops = RealisedDrops(encode, true_code, run.predictor.decoder, observer)
-                    decisions = decision_diagnostics(steps, drops, run.predictor.decoder, name == InformationGain.name)
+                    decisions = decision_diagnostics(
+                        steps, drops, run.predictor.decoder, name in INFORMATION_STRATEGIES
+                    )
                     diagnostics.append(
                         {**row, "shape_id": shape_id, "spread": view_spread(steps, candidates), "decisions": decisions}
                     )

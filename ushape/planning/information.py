@@ -24,6 +24,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ushape.propagation.linearised import latent_jacobian
 from ushape.propagation.sphere_tracing import sphere_trace
 from ushape.refinement.observation import ObservationSettings, code_functions, residuals, view_rays
 from ushape.refinement.posterior import RefineSettings, row_weights
@@ -45,6 +46,29 @@ def information_gain(
     L = torch.linalg.cholesky(cov)
     M = torch.eye(cov.shape[0], dtype=torch.float64) + L.T @ (0.5 * (A + A.T)) @ L
     return float(2.0 * torch.log(torch.diagonal(torch.linalg.cholesky(M))).sum())
+
+
+def surface_variance_drop(
+    cov: Tensor,  # [D, D] or [D] (diagonal) current covariance of the code
+    information: Tensor,  # [D, D] J^T W J of the candidate's predicted rows
+    surface_metric: Tensor,  # [D, D] G^T diag(area) G of the current surface's SDF Jacobian G [V, D]
+) -> float:
+    """sum_v area_v (g_v^T Sigma g_v - g_v^T Sigma' g_v), Sigma' = (Sigma^-1 + A)^-1: how much SDF variance the
+    observation would take off the current surface, area-weighted (squared SDF units times area)."""
+    cov = cov.detach().double()
+    cov = torch.diag(cov) if cov.ndim == 1 else 0.5 * (cov + cov.T)
+    A = 0.5 * (information.detach().double() + information.detach().double().T)
+    M = surface_metric.detach().double()
+    if not (cov.shape == A.shape == M.shape and cov.ndim == 2 and cov.shape[0] == cov.shape[1]):
+        raise ValueError(
+            f"cov, information and surface_metric must be [D, D] alike, got {tuple(cov.shape)}, "
+            f"{tuple(A.shape)} and {tuple(M.shape)}"
+        )
+    # Sigma - Sigma' = Sigma A^(1/2) (I + A^(1/2) Sigma A^(1/2))^-1 A^(1/2) Sigma, computed without inverting Sigma
+    # as Sigma (I + A Sigma)^-1 A Sigma.
+    eye = torch.eye(cov.shape[0], dtype=torch.float64)
+    drop = cov @ torch.linalg.solve(eye + A @ cov, A @ cov)
+    return float((M * drop).sum())
 
 
 def predicted_view(
@@ -131,3 +155,42 @@ class InformationGain:
             )
             scores[c] = information_gain(fused.var, A)
         return scores
+
+
+class SurfaceInformationGain(InformationGain):
+    """Each open candidate scored by the SDF variance its predicted rows would take off the current surface
+    (`surface_variance_drop`), each vertex weighted by the area it stands for.
+
+    The log-det score counts every code direction alike, relative to its own variance; this one counts a
+    direction by how much the decoder turns it into surface, in SDF units. Where the current mean has no
+    surface, the log-det score is used.
+    """
+
+    name = "information-surface"
+
+    def scores(self, state) -> np.ndarray:  # state: ushape.planning.loop.PlanState
+        surface = state.surface
+        if surface is None:
+            return super().scores(state)
+        vertices = torch.as_tensor(np.asarray(surface.mesh.vertices), dtype=torch.float32)
+        _, G = latent_jacobian(state.decoder, state.fused.mu.float(), vertices)
+        G = G.double()
+        metric = G.T @ (torch.as_tensor(surface.area, dtype=torch.float64)[:, None] * G)
+        settings, candidates = self.settings(state.observes), state.candidates
+        scores = np.zeros(len(candidates))
+        for c in range(len(candidates)):
+            if c in state.taken:
+                continue
+            A = candidate_information(
+                state.decoder,
+                state.fused.mu,
+                candidates.K[c],
+                candidates.world_to_cam[c],
+                tuple(candidates.image_hw[c]),
+                settings,
+            )
+            scores[c] = surface_variance_drop(state.fused.var, A, metric)
+        return scores
+
+
+INFORMATION_STRATEGIES = (InformationGain.name, SurfaceInformationGain.name)  # scored on predicted rows

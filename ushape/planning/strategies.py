@@ -6,6 +6,8 @@
 - random: a uniformly random candidate (reproducible per shape and step).
 - information: the expected information gain of a candidate's silhouette (or depth), predicted at the
   current mean through its camera, under the current covariance (ushape.planning.information).
+- information-surface: the same predicted rows scored by the SDF variance they would take off the current
+  surface, area-weighted, rather than by the log det over every code direction.
 - oracle: the candidate whose image brings the fused code closest to the shape's own code. It looks at
   every candidate's image and at the answer, so it is no strategy a robot could run: it bounds how much
   any choice of views can give with this encoder.
@@ -20,7 +22,7 @@ import torch
 from torch import Tensor
 
 from ushape.planning.criteria import angular_gap, uncertain_surface, unseen_uncertain_surface
-from ushape.planning.information import InformationGain
+from ushape.planning.information import INFORMATION_STRATEGIES, InformationGain, SurfaceInformationGain
 from ushape.planning.loop import Encode, Fusion, PlanState
 
 
@@ -98,19 +100,27 @@ class LatentOracle:
 
 
 STRATEGIES = {
-    s.name: s for s in (UncertainSurface, UnseenUncertainSurface, FarthestView, RandomView, InformationGain)
+    s.name: s
+    for s in (
+        UncertainSurface,
+        UnseenUncertainSurface,
+        FarthestView,
+        RandomView,
+        InformationGain,
+        SurfaceInformationGain,
+    )
 }  # what a robot can run; the oracle needs the answer
 
 
 def build_strategy(name: str, seed: int = 0, true_code: Tensor | None = None, **options):
     """A strategy by name (one of STRATEGIES, or "oracle" given the shape's own code); options go to the
-    information strategy (its rays per side `size`, the residuals' stds)."""
+    information strategies (their rays per side `size`, the residuals' stds)."""
     if name == LatentOracle.name:
         if true_code is None:
             raise ValueError("the oracle strategy needs the shape's own code (it scores against the answer)")
         return LatentOracle(true_code)
     if name not in STRATEGIES:
         raise ValueError(f"unknown strategy {name!r}; choose one of {[*STRATEGIES, LatentOracle.name]}")
-    if name == InformationGain.name:
-        return InformationGain(**options)
+    if name in INFORMATION_STRATEGIES:
+        return STRATEGIES[name](**options)
     return RandomView(seed) if name == RandomView.name else STRATEGIES[name]()
