@@ -127,8 +127,10 @@ def energy_parts(decoder, z, prior_mu, precision, views, settings):
 
 def sdf_rows(decoder, code, points, sdf_true):
     """|SDF error| [P] at ground-truth samples (clamped as evaluation clamps) and dSDF/dz [P, D] at the code,
-    so the summary can propagate any posterior covariance: std = sqrt(diag(G cov G^T))."""
+    so the summary can propagate any posterior covariance: std = sqrt(diag(G cov G^T)). As the evaluation's
+    linearised propagation, a point whose mean is beyond the clamp has no variance (its rows of G are 0)."""
     sdf, g = latent_jacobian(decoder, code, points)
+    g = torch.where(sdf.abs()[:, None] < SDF_CLAMP, g, torch.zeros_like(g))
     error = (sdf.clamp(-SDF_CLAMP, SDF_CLAMP) - sdf_true.clamp(-SDF_CLAMP, SDF_CLAMP)).abs()
     return {"abs_error": error.tolist(), "jacobian": g.tolist()}
 
@@ -188,10 +190,10 @@ def sdf_calibration(rows, key, scale, floor=0.0, temperature=1.0):
     return calibration_error(*calibration_curve(errors, (temperature * std.square() + floor**2).sqrt(), 20))
 
 
-def fit_sdf(val, mode, scale):
+def fit_sdf(val, mode, scale, misfit):
     """(T_sdf, floor) of the refined SDF variance at information scale s, fitted on the val rows at 1, 3, 10 views."""
     groups = [sdf_pool(sel, mode, scale) for n in VIEWS if (sel := [r for r in val if r["views"] == n])]
-    temperature, floor, before, after = fit_sdf_recalibration(groups)
+    temperature, floor, before, after = fit_sdf_recalibration(groups, misfit)
     print(
         f"{mode}: SDF variance at s = {scale:.4g}: T_sdf {temperature:.3g}, floor {floor:.4g} (val worst CE "
         f"{max(before):.3f} -> {max(after):.3f})"
@@ -204,8 +206,11 @@ def below(record):
     return sum(record["energy_map"]) < sum(record["energy_own_code"])
 
 
-def summarise(path, floor=None):
-    """Tables of docs/refinement.md from the rows: IoU / ceiling, CD, std ratios, calibration at the fitted s."""
+def summarise(path, misfit=None, stored=None):
+    """Tables of docs/refinement.md from the rows: IoU / ceiling, CD, std ratios, calibration at the fitted s;
+    stored: a run's refinement_calibration.json (`reconstruct.py --fit-refinement`), whose s, T_sdf and floor
+    are applied as reconstruct.py and `eval.py` apply them."""
+    stored = json.load(open(stored)) if stored else {}
     rows = [json.loads(line) for line in open(path)]
     val, test = [r for r in rows if r["split"] == "val"], [r for r in rows if r["split"] == "test"]
     for mode in ("masks", "depth"):
@@ -216,7 +221,11 @@ def summarise(path, floor=None):
             [torch.tensor(r[mode]["information"]) for r in fit],
         )
         print(f"{mode}: information scale s = {scale:.4g} (val CE {before:.3f} at s = 1 -> {after:.3f})")
-        sdf_fit = {s: fit_sdf(fit, mode, s) for s in (1.0, scale)}
+        sdf_fit = {s: fit_sdf(fit, mode, s, misfit) for s in (1.0, scale)} if misfit else {}
+        cli = stored.get(mode)
+        if cli:
+            s, t, f = cli["information_scale"], cli["sdf_temperature"], cli["sdf_floor"]
+            print(f"{mode}: stored fit s = {s:.4g}, T_sdf {t:.3g}, floor {f:.4g}")
         for n in VIEWS:
             sel = [r for r in test if r["views"] == n]
             if not sel:
@@ -242,11 +251,17 @@ def summarise(path, floor=None):
                 "CE fitted s": calibration(sel, mode, scale),
                 "SDF CE s=1": sdf_calibration(sel, mode, 1.0),
                 "SDF CE fitted s": sdf_calibration(sel, mode, scale),
-                "SDF CE s=1 + floor": sdf_calibration(sel, mode, 1.0, floor) if floor else None,
-                "SDF CE s=1, val-fitted T, floor": sdf_calibration(sel, mode, 1.0, sdf_fit[1.0][1], sdf_fit[1.0][0]),
-                "SDF CE fitted s, val-fitted T, floor": sdf_calibration(
-                    sel, mode, scale, sdf_fit[scale][1], sdf_fit[scale][0]
-                ),
+                "SDF CE s=1 + misfit floor": sdf_calibration(sel, mode, 1.0, misfit) if misfit else None,
+                **{
+                    f"SDF CE s={s:.3g}, val-fitted T_sdf, floor": sdf_calibration(sel, mode, s, f, t)
+                    for s, (t, f) in sdf_fit.items()
+                },
+                "CE stored fit": calibration(sel, mode, cli["information_scale"]) if cli else None,
+                "SDF CE stored fit": sdf_calibration(
+                    sel, mode, cli["information_scale"], cli["sdf_floor"], cli["sdf_temperature"]
+                )
+                if cli
+                else None,
                 "fallbacks": sum(r[mode]["fallback"] is not None for r in sel),
                 "seconds": np.mean([r[mode]["seconds"] for r in sel]),
                 "E(MAP) < E(own code)": f"{sum(below(r[mode]) for r in sel)}/{len(sel)}",
@@ -296,13 +311,15 @@ def main():
     )
     parser.add_argument("--summary", action="store_true", help="print the tables from OUT.jsonl and stop")
     parser.add_argument(
-        "--sdf-floor",
+        "--misfit",
         type=float,
-        help="with --summary: also the SDF CE with this std added (the run's sdf_decoder_misfit in temperature.json)",
+        help="with --summary: the run's sdf_decoder_misfit (temperature.json): the SDF CE with it as a floor, and "
+        "with the refined SDF variance's (T_sdf, floor <= misfit) fitted on the val rows",
     )
+    parser.add_argument("--calibration", help="with --summary: a refinement_calibration.json to apply to the test rows")
     args = parser.parse_args()
     if args.summary:
-        return summarise(args.out, args.sdf_floor)
+        return summarise(args.out, args.misfit, args.calibration)
     args.views = [int(n) for n in args.views.split(",")]
     unknown = sorted(set(args.views) - set(VIEWS))
     if unknown:

@@ -7,7 +7,7 @@ import torch
 
 from ushape.fusion import BayesianFusion, BayesianKFusion, SharedErrorFusion
 from ushape.reconstruction.calibrated_fusion import calibrate_fusion, calibrated_counterpart, default_fusion
-from ushape.reconstruction.pipeline import sdf_temperature
+from ushape.reconstruction.pipeline import sdf_floor, sdf_temperature
 
 
 def _predictor(tmp_path, fitted: bool, shared_sdf_temperature: float | None = None):
@@ -52,5 +52,8 @@ def test_the_meshes_std_takes_the_rules_sdf_temperature_unless_the_code_was_refi
     predictor = SimpleNamespace(sdf_temperature=1.5)
     shared = default_fusion(_predictor(tmp_path, True, shared_sdf_temperature=1.8))
     assert sdf_temperature(shared, predictor) == 1.8
-    assert sdf_temperature(shared, predictor, refined=True) == 1.5  # a refined posterior is not the fused one
+    refined = {"mode": "masks", "calibration": None}
+    assert sdf_temperature(shared, predictor, refined) == 1.5  # a refined posterior is not the fused one
+    refined["calibration"] = {"sdf_temperature": 0.6, "sdf_floor": 0.004}  # unless fitted for the refinement
+    assert sdf_temperature(shared, predictor, refined) == 0.6 and sdf_floor(shared, refined) == 0.004
     assert sdf_temperature(BayesianFusion(), predictor) == 1.5

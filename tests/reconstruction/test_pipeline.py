@@ -13,6 +13,7 @@ from ushape.data.layout import WorldIndex
 from ushape.fusion import BayesianKFusion
 from ushape.propagation import SDF_CLAMP
 from ushape.propagation.monte_carlo import sample_codes
+from ushape.recalibration import floor_grid
 from ushape.reconstruction.cli import build_fusion, main
 from ushape.reconstruction.export import read_glb_std, read_ply_std
 from ushape.reconstruction.pipeline import ReconstructionSettings, reconstruct, view_camera
@@ -118,9 +119,10 @@ def test_cli_reports_skipped_images_and_bad_fusion(tiny_run, tmp_path, capsys, m
     shared = record["shared_error"]
     assert shared["sdf_view_counts"] == [1, 3] and shared["sdf_temperature"] > 0
     assert max(shared["sdf_calibration_after"]) <= max(shared["sdf_calibration_before"])
-    # The decoder's misfit at the val shapes' own codes, an RMS in clamped SDF units; this untrained decoder's
-    # is larger than its fused codes' errors, so it is not kept as the floor.
-    assert 0 < shared["sdf_decoder_misfit"] <= 2 * SDF_CLAMP and "sdf_floor" not in shared
+    # The decoder's misfit at the val shapes' own codes, an RMS in clamped SDF units, sets the scale of the
+    # floors tried with the factor; the pair kept is one of them (none: 0, not stored).
+    misfit = shared["sdf_decoder_misfit"]
+    assert 0 < misfit <= 2 * SDF_CLAMP and shared.get("sdf_floor") in (None, *floor_grid(misfit)[1:])
     predictor = load_predictor(tiny_run["run"], temperature=True)
     assert predictor.sdf_temperature == record["sdf_temperature"]
     (tiny_run["checkpoint"].parent / "temperature.json").unlink()
@@ -253,3 +255,49 @@ def test_cli_camera_file_and_masks_need_refine(tiny_run, tmp_path, capsys):
     args = [*map(str, views), "--run", str(tiny_run["run"]), "--out", str(tmp_path / "o"), "--masks", str(views[0])]
     assert main(args) == 2
     assert "add --refine" in capsys.readouterr().err
+
+
+def test_fit_refinement_stores_a_calibration_that_the_refinement_then_applies(tiny_run, sphere_predictor, tmp_path):
+    from ushape.evaluation.refine_method import RefineMethod
+    from ushape.recalibration.refine_information import SCALE_GRID
+    from ushape.recalibration.temperature import CALIBRATION_GRID
+    from ushape.reconstruction.refine_calibration import (
+        calibration_path,
+        fit_and_store_refinement_calibration,
+        read_refinement_calibration,
+    )
+
+    world = WorldIndex(tiny_run["world"], category="", splits={})
+    points = np.random.default_rng(1).uniform(-1, 1, (300, 3))
+    for shape_id in ("val_0", "val_1", "val_2"):  # a sphere a little larger than the decoder's at z = 0
+        write_sdf(world, shape_id, np.concatenate([points, np.linalg.norm(points, axis=1, keepdims=True) - 0.55], 1))
+    checkpoint = sphere_predictor.checkpoint
+    try:
+        record = fit_and_store_refinement_calibration(sphere_predictor, "masks", size=12, n_points=200)
+        assert record["view_counts"] == [1, 3] and record["n_shapes"] == 3  # 3 views a shape: no 10
+        assert record["information_scale"] in SCALE_GRID and record["sdf_temperature"] in CALIBRATION_GRID
+        misfit = record["sdf_decoder_misfit"]
+        assert misfit > 0 and record["sdf_floor"] in floor_grid(misfit)
+        # T = 1 and no floor are on the grids: the fit is never worse on val than none.
+        assert max(record["sdf_calibration_after"]) <= max(record["sdf_calibration_before"])
+        assert record["latent_calibration_after"] <= record["latent_calibration_before"]
+        assert read_refinement_calibration(checkpoint, "masks") == record
+        assert read_refinement_calibration(checkpoint, "depth") is None
+        views = sorted((tiny_run["world"] / "renders" / "test_0").glob("*.png"))[:2]
+        settings = dataclasses.replace(SMALL, refine="masks", refine_size=12)
+        summary = reconstruct(sphere_predictor, views, BayesianKFusion(k=2), tmp_path / "out", settings)
+        applied = summary["refinement"]["calibration"]
+        assert applied["information_scale"] == record["information_scale"] and applied["size"] == 12
+        assert summary["sdf_temperature"] == record["sdf_temperature"]
+        assert summary["sdf_floor"] == (record["sdf_floor"] or None)
+        run = type("Run", (), {"predictor": sphere_predictor})()
+        method = RefineMethod("masks", size=12, calibrated=True)
+        assert method.settings_for(run).information_scale == record["information_scale"]
+        assert method.sdf_calibration_for(run) == (record["sdf_temperature"], record["sdf_floor"] or None)
+        with pytest.raises(ValueError, match="--fit-refinement depth"):
+            RefineMethod("depth", calibrated=True).settings_for(run)
+        assert RefineMethod("depth").settings_for(run).information_scale == 1.0  # not calibrated: its own knobs
+    finally:
+        calibration_path(checkpoint).unlink(missing_ok=True)
+        for shape_id in ("val_0", "val_1", "val_2"):
+            world.sdf_path(shape_id).unlink()

@@ -51,6 +51,10 @@ class ReconstructionMethod:
         """The per-view Gaussians [N, D] the protocols fuse for these views (default: the encoder's own)."""
         return encodings
 
+    def sdf_calibration_for(self, run: EncoderRun) -> tuple[float, float | None] | None:
+        """(T_sdf, floor) of this method's SDF variance for a run (default: `sdf_calibration`, the same for all)."""
+        return self.sdf_calibration
+
     def after_fusion(self, context, fused: Estimate, keys: Sequence[ViewKey], min_scale: float) -> Estimate:
         """The Gaussian reconstructed from `fused`, the Gaussian of the views `keys` (each cropped at min_scale)
         combined by a table's rule (one view: its own). `context` is the encoder's `EvalContext` (its run,
@@ -67,9 +71,8 @@ def sdf_variance_calibration(run) -> tuple[float | None, float | None]:
     """(T_sdf, floor) for the SDF variance of the Gaussians a run reconstructs with: its method's own where
     fitted (`ReconstructionMethod.sdf_calibration`), else the run's single-view T_sdf and no floor."""
     method = run.method
-    if method is not None and method.changes_fused and method.sdf_calibration is not None:
-        return method.sdf_calibration
-    return run.predictor.sdf_temperature, None
+    own = method.sdf_calibration_for(run) if method is not None and method.changes_fused else None
+    return own if own is not None else (run.predictor.sdf_temperature, None)
 
 
 def per_view(context, encodings: Encodings, min_scale: float, done: dict[ViewKey, Estimate] | None = None) -> Encodings:

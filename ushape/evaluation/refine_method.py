@@ -16,7 +16,7 @@ the prior refined (which tells the fusion rules apart), and written atomically.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Sequence
 
@@ -27,10 +27,12 @@ from PIL import Image
 from ushape import atomic
 from ushape.data.augment import corrupted_box, load_rgba, view_seed
 from ushape.data.layout import WorldIndex
+from ushape.errors import InputError
 from ushape.evaluation.methods import ReconstructionMethod
 from ushape.evaluation.views import Estimate, ViewKey, encoder_tag
 from ushape.fusion.strategies import check_optional_number
-from ushape.refinement import ObservedView, crop_view, refine, refine_settings, world_views
+from ushape.reconstruction.refine_calibration import read_refinement_calibration
+from ushape.refinement import ObservedView, RefineSettings, crop_view, refine, refine_settings, world_views
 
 CACHE_FOLDER = "refine"
 
@@ -83,7 +85,9 @@ class RefineMethod(ReconstructionMethod):
     covariance (Sigma^-1 + s J^T W J)^-1 (1: every ray counted as independent; a value fitted on val with
     ushape.recalibration.refine_information) (see ushape.refinement.RefineSettings); sdf_temperature and
     sdf_floor, the posterior's SDF variance T_sdf var + floor^2 (fitted on val with
-    `refine_information.fit_sdf_recalibration`; None: the run's single-view T_sdf)."""
+    `refine_information.fit_sdf_recalibration`; None: the run's single-view T_sdf). calibrated: s, T_sdf and
+    the floor from each run's own fit instead (`reconstruct.py --fit-refinement MODE`, refinement_calibration.json
+    beside its checkpoint)."""
 
     def __init__(
         self,
@@ -95,16 +99,40 @@ class RefineMethod(ReconstructionMethod):
         information_scale: float = 1.0,
         sdf_temperature: float | None = None,
         sdf_floor: float | None = None,
+        calibrated: bool = False,
         name: str | None = None,
         label: str | None = None,
     ) -> None:
         self.settings = refine_settings(mode, size, sigma_mask, sigma_depth, iterations, information_scale)
+        self.calibrated = bool(calibrated)
         temperature = check_optional_number(sdf_temperature, "sdf_temperature")
         floor = check_optional_number(sdf_floor, "sdf_floor", zero_ok=True)
         if temperature is not None or floor is not None:
             self.sdf_calibration = (1.0 if temperature is None else temperature, floor)
         self.name = name or f"refine_{mode}"
         self.label = label or f"refine ({mode})"
+
+    def run_calibration(self, run) -> dict | None:
+        """The run's --fit-refinement fit for this mode where `calibrated` (an error says how to make it), else None."""
+        if not self.calibrated:
+            return None
+        fit = read_refinement_calibration(run.predictor.checkpoint, self.settings.mode)
+        if fit is None:
+            raise InputError(
+                f"{self.name}: calibrated, but {run.predictor.checkpoint} has no refinement calibration for "
+                f"{self.settings.mode}; fit it with `python reconstruct.py --fit-refinement {self.settings.mode} "
+                f"--checkpoint {run.predictor.checkpoint} --refine-size {self.settings.observation.size}`"
+            )
+        return fit
+
+    def settings_for(self, run) -> RefineSettings:
+        """The settings a run's views are refined with: the run's fitted information scale where `calibrated`."""
+        fit = self.run_calibration(run)
+        return self.settings if fit is None else replace(self.settings, information_scale=fit["information_scale"])
+
+    def sdf_calibration_for(self, run) -> tuple[float, float | None] | None:
+        fit = self.run_calibration(run)
+        return self.sdf_calibration if fit is None else (fit["sdf_temperature"], fit["sdf_floor"] or None)
 
     def after_fusion(self, context, fused: Estimate, keys: Sequence[ViewKey], min_scale: float) -> Estimate:
         """`fused` refined on the views `keys` as the evaluation cropped them at min_scale (cached)."""
@@ -114,7 +142,7 @@ class RefineMethod(ReconstructionMethod):
             blob = torch.load(cache, map_location="cpu", weights_only=False)
             return Estimate(blob["mu"], blob["cov"], blob["fallback"])
         views = [evaluation_view(EvaluationView(run.world, key, min_scale, seed)) for key in keys]
-        posterior = refine(run.predictor.decoder, fused.mu, fused.var, views, self.settings)
+        posterior = refine(run.predictor.decoder, fused.mu, fused.var, views, self.settings_for(run))
         estimate = Estimate(posterior.mu, posterior.cov, posterior.fallback)
         if cache is not None:
             atomic.torch_save({"mu": estimate.mu, "cov": estimate.var, "fallback": estimate.fallback}, cache)
@@ -129,6 +157,6 @@ class RefineMethod(ReconstructionMethod):
         views = "|".join(f"{k.shape_id}/{k.view}" for k in keys)
         text = (
             f"{encoder_tag(run.predictor)}|{run.reconstructor.decoder_tag}|{Path(run.world.root).resolve()}|"
-            f"{self.settings}|{views}|{min_scale:g}|{context.settings.seed}|{prior}"
+            f"{self.settings_for(run)}|{views}|{min_scale:g}|{context.settings.seed}|{prior}"
         )
         return Path(context.cache_dir) / CACHE_FOLDER / f"{hashlib.sha1(text.encode()).hexdigest()[:24]}.pt"

@@ -230,7 +230,7 @@ def view_calibration_protocol(run, settings, encodings, codes, draws: int = 6, a
         decoder=decoder,
         sdf_temperature=sdf_t,
         after=None if after is None else steps,
-        after_sdf=None if after is None or run.method is None else run.method.sdf_calibration,
+        after_sdf=None if after is None or run.method is None else run.method.sdf_calibration_for(run),
     )
     log_fallbacks(run.spec.name, fallbacks, "Table V fused view subsets")
     return [{"encoder": run.spec.name, "label": run.spec.label, **row} for row in rows]

@@ -61,6 +61,7 @@ def fit_information_scale(
 
 def fit_sdf_recalibration(
     groups: Sequence[tuple[Tensor, Tensor]],  # per number of views refined on: (|SDF error| [P], SDF std [P])
+    misfit: float,
     n_levels: int = 20,
 ) -> tuple[float, float, list[float], list[float]]:
     """(T_sdf, floor, calibration error per group as given, at (T_sdf, floor)) of the refined posterior's SDF
@@ -69,11 +70,10 @@ def fit_sdf_recalibration(
 
     The refined code's SDF error has a part no direction of its posterior carries (the decoder cannot draw
     the shape exactly; where the views pin the visible surface, less of it is left than at the shape's own
-    code), so a floor is fitted beside the factor, on a grid scaled by the RMS of the val errors themselves.
+    code), so a floor is fitted beside the factor, between 0 and the decoder's own misfit (`misfit`: the RMS
+    clamped SDF error of the val shapes' own codes, `temperature.json`'s `sdf_decoder_misfit`).
     """
     if not groups:
         raise ValueError("no refined val shapes to fit the SDF variance on: pass at least one (|error|, std) group")
-    errors = torch.cat([e.reshape(-1).double() for e, _ in groups])
-    scale = float(errors.square().mean().sqrt())
-    floors = floor_grid(scale) if scale > 0 else (0.0,)
+    floors = floor_grid(misfit) if misfit > 0 else (0.0,)  # a decoder that draws its val shapes exactly: no floor
     return fit_calibration_temperature_and_floor(groups, floors, n_levels)

@@ -40,12 +40,15 @@ from ushape.recalibration import apply_temperature
 from ushape.reconstruction.export import DEFAULT_CMAP, coloured_mesh, write_mesh_files
 from ushape.reconstruction.figures import depth_figure, overview_figure
 from ushape.reconstruction.predictor import Predictor
+from ushape.reconstruction.refine_calibration import read_refinement_calibration
 from ushape.reconstruction.visibility import hidden_over_visible
 from ushape.refinement import MODES as REFINE_MODES
 from ushape.refinement import ObservationSettings, ObservedView, RefineSettings, refine
 from ushape.refinement.inputs import input_views
 
 log = logging.getLogger(__name__)
+# What summary.json's refinement record keeps of the calibration it applied (reconstruct.py --fit-refinement).
+APPLIED = ("information_scale", "sdf_temperature", "sdf_floor", "size", "n_shapes")
 
 CANONICAL_CAMERA = {"azimuth_deg": 45.0, "elevation_deg": 27.5, "distance": 2.8, "fov_deg": R2N2_FOV_DEG}
 SUMMARY_FILE = "summary.json"
@@ -154,7 +157,8 @@ def reconstruct(
     prior, refinement = fused, None
     if settings.refine is not None:
         with timer("refine"):
-            fused, refinement = refined(decoder, fused, inputs, paths, observations, settings)
+            calibration = read_refinement_calibration(predictor.checkpoint, settings.refine)
+            fused, refinement = refined(decoder, fused, inputs, paths, observations, settings, calibration)
     with timer("mesh"):
         mesh, stats = mean_mesh(decoder, fused.mu, settings.resolution, bf16)
     with timer("vertex_uncertainty"):
@@ -169,7 +173,7 @@ def reconstruct(
             generator,
             bf16=bf16 and settings.uncertainty == "linearised",
         )
-        sdf_t = sdf_temperature(fusion, predictor, refined=refinement is not None)
+        sdf_t = sdf_temperature(fusion, predictor, refinement)
         if sdf_t is not None:  # the SDF-space recalibration (`fit_and_store_temperature`)
             std = apply_temperature(std.square(), sdf_t).sqrt()
         std = std.numpy()
@@ -208,11 +212,22 @@ def reconstruct(
     )
 
 
-def sdf_temperature(fusion: Fusion, predictor: Predictor, refined: bool = False) -> float | None:
-    """The factor on the SDF variance propagated from the fused code: the fusion rule's own where it has one
-    (`shared`, fitted on val on its fused variance) and the code was not refined, else the predictor's."""
+def sdf_temperature(fusion: Fusion, predictor: Predictor, refinement: dict | None = None) -> float | None:
+    """The factor on the SDF variance propagated from the code meshed: a refined code's, the refinement's own
+    where --fit-refinement fitted it (`refinement["calibration"]`); a fused code's, the fusion rule's own where
+    it has one (`shared`, fitted on val on its fused variance); else the predictor's single-view one."""
+    if refinement is not None:
+        calibration = refinement.get("calibration")
+        return predictor.sdf_temperature if calibration is None else calibration["sdf_temperature"]
     own = getattr(fusion, "sdf_temperature", None)
-    return predictor.sdf_temperature if refined or own is None else own
+    return predictor.sdf_temperature if own is None else own
+
+
+def sdf_floor(fusion: Fusion, refinement: dict | None = None) -> float | None:
+    """The std added to that SDF variance, T var + floor^2: the refinement's fitted floor, or the fusion rule's."""
+    if refinement is not None:
+        return (refinement.get("calibration") or {}).get("sdf_floor") or None
+    return getattr(fusion, "sdf_floor", None)
 
 
 def refined(
@@ -222,8 +237,10 @@ def refined(
     paths: Sequence[Path],  # the inputs that could be read
     observations: Sequence[ObservedView | None] | None,  # one per input
     settings: ReconstructionSettings,
+    calibration: dict[str, Any] | None = None,  # --fit-refinement's fit for this mode (None: none)
 ) -> tuple[FusedCode, dict[str, Any]]:
-    """The fused code refined on the views (FusedCode with var the full covariance [D, D]) and its record."""
+    """The fused code refined on the views (FusedCode with var the full covariance [D, D]) and its record; with
+    a calibration, the posterior at its information scale s, and the record carries the calibration."""
     if observations is None:
         views = input_views(paths)
     elif len(observations) != len(inputs):
@@ -231,9 +248,21 @@ def refined(
     else:
         by_input = dict(zip((Path(i) for i in inputs), observations))
         views = [by_input[Path(p)] for p in paths]
-    options = RefineSettings(mode=settings.refine, observation=ObservationSettings(size=settings.refine_size))
+    scale = 1.0 if calibration is None else float(calibration["information_scale"])
+    if calibration is not None and calibration.get("size") != settings.refine_size:
+        log.warning(
+            "the refinement's calibration was fitted at %s rays a side, this refinement uses %d: refit with "
+            "`reconstruct.py --fit-refinement %s --refine-size %d`",
+            calibration.get("size"),
+            settings.refine_size,
+            settings.refine,
+            settings.refine_size,
+        )
+    observation = ObservationSettings(size=settings.refine_size)
+    options = RefineSettings(mode=settings.refine, observation=observation, information_scale=scale)
     posterior = refine(decoder, fused.mu, fused.var, views, options)
     record = {"mode": settings.refine, "views_with_camera": sum(v is not None for v in views), **posterior.record()}
+    record["calibration"] = None if calibration is None else {k: calibration[k] for k in APPLIED}
     record["mu"] = posterior.mu.tolist()
     if posterior.fallback is not None:  # the prior exactly, in its own (diagonal) form
         return fused, record
@@ -338,10 +367,10 @@ def write_summary(
     summary = {
         "checkpoint": str(predictor.checkpoint),
         "temperature": predictor.temperature,
-        "sdf_temperature": sdf_temperature(fusion, predictor, refined=refinement is not None),
-        # The decoder's own SDF misfit (a std) the calibrated SDF variance adds, T var + floor^2; the same at every
-        # point, so the mesh's std files leave it out (None: no floor, or a refined code).
-        "sdf_floor": None if refinement is not None else getattr(fusion, "sdf_floor", None),
+        "sdf_temperature": sdf_temperature(fusion, predictor, refinement),
+        # The std the calibrated SDF variance adds, T var + floor^2 (fitted with T for the fusion rule, or for the
+        # refinement); the same at every point, so the mesh's std files leave it out (None: no floor).
+        "sdf_floor": sdf_floor(fusion, refinement),
         "fusion": getattr(fusion, "name", type(fusion).__name__),
         "fusion_calibration": getattr(fusion, "calibration", None),
         "uncertainty": settings.uncertainty,

@@ -1,0 +1,162 @@
+"""Calibrate the refined posterior on val shapes, per refinement mode, and keep the fit beside the checkpoint.
+
+The refinement's Laplace posterior counts every ray as an independent observation and the decoder cannot
+draw the true shape, so its covariance is too narrow, more so as views add up (docs/refinement.md). Two
+fits on the val split correct it, each by what it is scored on:
+  - latent: the information scale s of (Sigma^-1 + s J^T W J)^-1, by the calibration error of the refined
+    codes against the shapes' own codes (`refine_information.fit_information_scale`);
+  - SDF: the factor and floor of the SDF variance propagated from that posterior, T_sdf var + floor^2 (floor
+    between 0 and the decoder's own misfit), by the worst calibration error over the val shapes refined on
+    1, 3 and 10 views (`refine_information.fit_sdf_recalibration`).
+The prior refined is the run's default fusion of the views (`shared` where --fit-temperature fitted it),
+as reconstruct.py refines it. `refinement_calibration.json` = {mode: {"information_scale", "sdf_temperature",
+"sdf_floor", "latent_calibration_before", "latent_calibration_after", "sdf_calibration_before",
+"sdf_calibration_after", "sdf_decoder_misfit", "view_counts", "n_shapes", "size", "fusion", "fallbacks"}}.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from ushape import atomic
+from ushape.data.layout import WorldIndex, read_split
+from ushape.data.sdf_dataset import sdf_points
+from ushape.decoder.artifacts import codes_file, load_codes
+from ushape.encoder.datamodule import view_files
+from ushape.propagation import SDF_CLAMP, propagate_to_sdf
+from ushape.recalibration.refine_information import fit_information_scale, fit_sdf_recalibration
+from ushape.reconstruction.calibrated_fusion import default_fusion
+from ushape.reconstruction.predictor import Predictor
+from ushape.reconstruction.temperature_store import decoder_misfit
+from ushape.refinement import ObservationSettings, RefineSettings, refine
+from ushape.refinement.inputs import input_views
+from ushape.refinement.posterior import prior_precision
+
+CALIBRATION_FILE = "refinement_calibration.json"
+# How many of a val shape's views the refinement is fitted on at a time (Table V's counts).
+VIEW_COUNTS = (1, 3, 10)
+
+
+def spread_views(n_views: int, n: int) -> list[int] | None:
+    """n of a shape's n_views views spread evenly around its orbit (12 views, 3: 0, 4, 8), None if n > n_views."""
+    return None if n > n_views else sorted({int(i * n_views / n) for i in range(n)})
+
+
+def calibration_path(checkpoint: str | Path) -> Path:
+    return Path(checkpoint).parent / CALIBRATION_FILE
+
+
+def read_refinement_calibration(checkpoint: str | Path, mode: str) -> dict[str, Any] | None:
+    """The fit `fit_and_store_refinement_calibration` stored for this mode beside the checkpoint, or None."""
+    path = calibration_path(checkpoint)
+    if not path.is_file():
+        return None
+    return json.loads(path.read_text()).get(mode)
+
+
+def refined_val_shapes(
+    predictor: Predictor, world: WorldIndex, settings: RefineSettings, n_shapes: int, n_points: int
+) -> tuple[list[dict], int, list[str]]:
+    """Per refined (val shape, view set): n, |z* - z_own| [D], the prior precision and J^T W J [D, D], the SDF
+    samples; with the number that fell back (left out) and the shapes used."""
+    codes = load_codes(Path(predictor.model.hparams.decoder_path) / codes_file("val"))
+    fusion = default_fusion(predictor)
+    shapes = world.shape_ids("val")[:n_shapes]
+    refined, fallbacks = [], 0
+    for shape_id in shapes:
+        files = view_files(world.root, shape_id)
+        images, _, _ = predictor.load_images(files)
+        mu, var = predictor.encode(images)
+        points, sdf_true = sdf_points(world, shape_id, n_points)
+        for n in VIEW_COUNTS:
+            chosen = spread_views(len(files), n)
+            if chosen is None:
+                continue
+            fused = fusion(mu[chosen], var[chosen])
+            views = input_views([Path(files[i]) for i in chosen])  # as reconstruct.py reads a render's views
+            post = refine(predictor.decoder, fused.mu, fused.var, views, settings)
+            if post.fallback is not None or post.information is None:
+                fallbacks += 1
+                continue
+            refined.append(
+                {
+                    "n": n,
+                    "mu": post.mu,
+                    "error": post.mu - codes.lookup(shape_id),
+                    "precision": prior_precision(fused.var),
+                    "information": post.information,
+                    "sdf": (points, sdf_true),
+                }
+            )
+    return refined, fallbacks, shapes
+
+
+def sdf_groups(decoder, refined: list[dict], scale: float) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """Per view count: (|SDF error| [P], std [P]) of the posteriors at information scale s, linearised and clamped
+    as the evaluation propagates them."""
+    groups = []
+    for n in VIEW_COUNTS:
+        errors, stds = [], []
+        for r in (r for r in refined if r["n"] == n):
+            cov = torch.linalg.inv(r["precision"] + scale * r["information"].double()).float()
+            points, sdf_true = r["sdf"]
+            mean, variance = propagate_to_sdf(decoder, r["mu"], cov, points, "linearised", clamp=SDF_CLAMP)
+            errors.append((mean - sdf_true.clamp(-SDF_CLAMP, SDF_CLAMP)).abs()), stds.append(variance.sqrt())
+        if errors:
+            groups.append((torch.cat(errors), torch.cat(stds)))
+    return groups
+
+
+def fit_refinement_calibration(
+    predictor: Predictor,
+    mode: str,
+    world: str | Path | None = None,
+    n_shapes: int = 4,
+    size: int = 24,
+    n_points: int = 1024,
+) -> dict[str, Any]:
+    """Refine the first n_shapes val shapes on 1, 3 and 10 of their views, fit s and the SDF (T_sdf, floor)."""
+    world = world or predictor.world
+    if world is None:
+        raise ValueError("which world's val split? pass a run folder (its run.json names the world) or `world=`")
+    index = WorldIndex(Path(world), category="", splits={"val": read_split(world, "val")})  # the val split's paths
+    settings = RefineSettings(mode=mode, observation=ObservationSettings(size=size))
+    refined, fallbacks, shapes = refined_val_shapes(predictor, index, settings, n_shapes, n_points)
+    if not refined:
+        raise ValueError(f"no val shape of {world} could be refined ({fallbacks} fell back): nothing to fit")
+    scale, latent_before, latent_after = fit_information_scale(
+        [r["error"] for r in refined], [r["precision"] for r in refined], [r["information"] for r in refined]
+    )
+    codes = load_codes(Path(predictor.model.hparams.decoder_path) / codes_file("val"))
+    misfit = decoder_misfit(predictor, index, torch.stack([codes.lookup(s) for s in shapes]), shapes, n_points)
+    temperature, floor, before, after = fit_sdf_recalibration(sdf_groups(predictor.decoder, refined, scale), misfit)
+    return {
+        "information_scale": scale,
+        "latent_calibration_before": latent_before,
+        "latent_calibration_after": latent_after,
+        "sdf_temperature": temperature,
+        "sdf_floor": floor,
+        "sdf_calibration_before": before,
+        "sdf_calibration_after": after,
+        "sdf_decoder_misfit": misfit,
+        "view_counts": sorted({r["n"] for r in refined}),
+        "n_shapes": len(shapes),
+        "size": size,
+        "fusion": type(default_fusion(predictor)).__name__,
+        "fallbacks": fallbacks,
+    }
+
+
+def fit_and_store_refinement_calibration(predictor: Predictor, mode: str, **options) -> dict[str, Any]:
+    """Fit this mode's calibration and write it into refinement_calibration.json beside the checkpoint (the
+    other mode's fit is kept); returns the fit."""
+    record = fit_refinement_calibration(predictor, mode, **options)
+    path = calibration_path(predictor.checkpoint)
+    stored = json.loads(path.read_text()) if path.is_file() else {}
+    stored[mode] = record
+    atomic.write_json(path, stored)
+    return record
