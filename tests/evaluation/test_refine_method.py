@@ -272,9 +272,7 @@ class HalvedRecalibrated(Halved):
     sdf_calibration = (2.0, None)
 
 
-def test_a_methods_own_sdf_calibration_scales_its_sdf_variance_in_tables_v_and_s1(
-    sphere_world, sphere_codes, tmp_path
-):
+def test_a_methods_own_sdf_calibration_scales_its_sdf_variance_in_tables_v_and_s1(sphere_world, sphere_codes, tmp_path):
     import json
 
     record = {"temperature": 1.0, "shared_error": {"var": [0.1] * 3, "view_scale": 1.0, "n_shapes": 2}}

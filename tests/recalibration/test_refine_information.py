@@ -52,9 +52,9 @@ def test_the_refined_sdf_variance_gets_back_a_known_factor_and_floor():
         std = torch.rand(8000, generator=gen, dtype=torch.float64) * spread + 1e-4
         scale = (factor * std.square() + floor**2).sqrt()
         groups.append(((scale * torch.randn(8000, generator=gen, dtype=torch.float64)).abs(), std))
-    found, found_floor, before, after = fit_sdf_recalibration(groups)
-    # The floors tried are 2^(1/2) apart (scaled by the errors' RMS): the fit lands within a step of each.
+    found, found_floor, before, after = fit_sdf_recalibration(groups, misfit=0.014)
+    # The floors tried are 2^(1/2) apart below the misfit (0.0099 is one): the fit lands within a step of each.
     assert found_floor == pytest.approx(floor, rel=0.45) and found == pytest.approx(factor, rel=0.45)
     assert max(after) < 0.03 and min(before) > 0.15  # within a grid step of calibrated, from far over-confident
     with pytest.raises(ValueError, match="at least one"):
-        fit_sdf_recalibration([])
+        fit_sdf_recalibration([], misfit=0.01)
