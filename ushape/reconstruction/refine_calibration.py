@@ -27,7 +27,7 @@ from ushape.data.layout import WorldIndex, read_split
 from ushape.data.sdf_dataset import sdf_points
 from ushape.decoder.artifacts import codes_file, load_codes
 from ushape.encoder.datamodule import view_files
-from ushape.propagation import SDF_CLAMP, propagate_to_sdf
+from ushape.propagation import clamped_sdf_errors
 from ushape.recalibration.refine_information import fit_information_scale, fit_sdf_recalibration
 from ushape.reconstruction.calibrated_fusion import default_fusion
 from ushape.reconstruction.predictor import Predictor
@@ -59,11 +59,10 @@ def read_refinement_calibration(checkpoint: str | Path, mode: str) -> dict[str, 
 
 
 def refined_val_shapes(
-    predictor: Predictor, world: WorldIndex, settings: RefineSettings, n_shapes: int, n_points: int
+    predictor: Predictor, world: WorldIndex, codes, settings: RefineSettings, n_shapes: int, n_points: int
 ) -> tuple[list[dict], int, list[str]]:
     """Per refined (val shape, view set): n, |z* - z_own| [D], the prior precision and J^T W J [D, D], the SDF
-    samples; with the number that fell back (left out) and the shapes used."""
-    codes = load_codes(Path(predictor.model.hparams.decoder_path) / codes_file("val"))
+    samples; with the number that fell back (left out) and the shapes used. codes: the val shapes' own codes."""
     fusion = default_fusion(predictor)
     shapes = world.shape_ids("val")[:n_shapes]
     refined, fallbacks = [], 0
@@ -103,9 +102,8 @@ def sdf_groups(decoder, refined: list[dict], scale: float) -> list[tuple[torch.T
         errors, stds = [], []
         for r in (r for r in refined if r["n"] == n):
             cov = torch.linalg.inv(r["precision"] + scale * r["information"].double()).float()
-            points, sdf_true = r["sdf"]
-            mean, variance = propagate_to_sdf(decoder, r["mu"], cov, points, "linearised", clamp=SDF_CLAMP)
-            errors.append((mean - sdf_true.clamp(-SDF_CLAMP, SDF_CLAMP)).abs()), stds.append(variance.sqrt())
+            e, s = clamped_sdf_errors(decoder, r["mu"][None], cov[None], *r["sdf"])
+            errors.append(e.reshape(-1)), stds.append(s.reshape(-1))
         if errors:
             groups.append((torch.cat(errors), torch.cat(stds)))
     return groups
@@ -125,13 +123,13 @@ def fit_refinement_calibration(
         raise ValueError("which world's val split? pass a run folder (its run.json names the world) or `world=`")
     index = WorldIndex(Path(world), category="", splits={"val": read_split(world, "val")})  # the val split's paths
     settings = RefineSettings(mode=mode, observation=ObservationSettings(size=size))
-    refined, fallbacks, shapes = refined_val_shapes(predictor, index, settings, n_shapes, n_points)
+    codes = load_codes(Path(predictor.model.hparams.decoder_path) / codes_file("val"))
+    refined, fallbacks, shapes = refined_val_shapes(predictor, index, codes, settings, n_shapes, n_points)
     if not refined:
         raise ValueError(f"no val shape of {world} could be refined ({fallbacks} fell back): nothing to fit")
     scale, latent_before, latent_after = fit_information_scale(
         [r["error"] for r in refined], [r["precision"] for r in refined], [r["information"] for r in refined]
     )
-    codes = load_codes(Path(predictor.model.hparams.decoder_path) / codes_file("val"))
     misfit = decoder_misfit(predictor, index, torch.stack([codes.lookup(s) for s in shapes]), shapes, n_points)
     temperature, floor, before, after = fit_sdf_recalibration(sdf_groups(predictor.decoder, refined, scale), misfit)
     return {
