@@ -59,11 +59,11 @@ def read_refinement_calibration(checkpoint: str | Path, mode: str) -> dict[str, 
 
 
 def refined_val_shapes(
-    predictor: Predictor, world: WorldIndex, codes, settings: RefineSettings, n_shapes: int, n_points: int
+    predictor: Predictor, world: WorldIndex, codes, fusion, settings: RefineSettings, n_shapes: int, n_points: int
 ) -> tuple[list[dict], int, list[str]]:
     """Per refined (val shape, view set): n, |z* - z_own| [D], the prior precision and J^T W J [D, D], the SDF
-    samples; with the number that fell back (left out) and the shapes used. codes: the val shapes' own codes."""
-    fusion = default_fusion(predictor)
+    samples; with the number that fell back (left out) and the shapes used. codes: the val shapes' own codes;
+    fusion: the rule that makes each prior."""
     shapes = world.shape_ids("val")[:n_shapes]
     refined, fallbacks = [], 0
     for shape_id in shapes:
@@ -124,7 +124,8 @@ def fit_refinement_calibration(
     index = WorldIndex(Path(world), category="", splits={"val": read_split(world, "val")})  # the val split's paths
     settings = RefineSettings(mode=mode, observation=ObservationSettings(size=size))
     codes = load_codes(Path(predictor.model.hparams.decoder_path) / codes_file("val"))
-    refined, fallbacks, shapes = refined_val_shapes(predictor, index, codes, settings, n_shapes, n_points)
+    fusion = default_fusion(predictor)
+    refined, fallbacks, shapes = refined_val_shapes(predictor, index, codes, fusion, settings, n_shapes, n_points)
     if not refined:
         raise ValueError(f"no val shape of {world} could be refined ({fallbacks} fell back): nothing to fit")
     scale, latent_before, latent_after = fit_information_scale(
@@ -144,7 +145,7 @@ def fit_refinement_calibration(
         "view_counts": sorted({r["n"] for r in refined}),
         "n_shapes": len(shapes),
         "size": size,
-        "fusion": type(default_fusion(predictor)).__name__,
+        "fusion": type(fusion).__name__,
         "fallbacks": fallbacks,
     }
 
