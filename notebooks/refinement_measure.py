@@ -16,6 +16,7 @@ import argparse
 import json
 import os
 import time
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -40,10 +41,11 @@ from ushape.recalibration.refine_information import (
     fit_information_scale,
     fit_sdf_recalibration,
     scaled_posterior_std,
+    seen_floor_variance,
 )
 from ushape.reconstruction.calibrated_fusion import default_fusion
 from ushape.reconstruction.predictor import load_predictor, trained_decoder
-from ushape.reconstruction.visibility import hidden_over_visible, visible_vertices
+from ushape.reconstruction.visibility import hidden_over_visible, seen_by_views, visible_vertices
 from ushape.refinement import ObservationSettings, RefineSettings, crop_view, refine, world_views
 from ushape.refinement.observation import residuals
 from ushape.refinement.posterior import prior_precision, row_weights
@@ -69,6 +71,20 @@ def vertex_std(decoder, code, cov, vertices):
     _, g = latent_jacobian(decoder, code, torch.as_tensor(np.asarray(vertices), dtype=torch.float32))
     g = g.double()
     return ((g @ cov.double()) * g).sum(-1).clamp_min(0).sqrt().numpy()
+
+
+def calibrated_std(decoder, post, prior_var, vertices, mesh, views, fit):
+    """Vertex std of the refined posterior as reconstruct.py draws it with a stored fit's "seen" model: the
+    covariance at the fit's information scale, T var + floor^2 with the floor where `views` saw the vertex."""
+    cov = torch.linalg.inv(prior_precision(prior_var) + fit["information_scale"] * post.information.double())
+    var = torch.as_tensor(vertex_std(decoder, post.mu, cov, vertices)).square()
+    seen = torch.as_tensor(seen_by_views(mesh, vertices, views, fit["seen"]["tolerance"]))
+    model = fit["seen"]
+    return (
+        seen_floor_variance(var, seen, model["sdf_temperature"], model["floor_seen"], model["floor_unseen"])
+        .sqrt()
+        .numpy()
+    )
 
 
 def shape_rows(args, predictor, fusion, world, codes, shape_id, with_vertices):
@@ -103,6 +119,7 @@ def shape_rows(args, predictor, fusion, world, codes, shape_id, with_vertices):
             s["information"] = post.information.tolist() if post.information is not None else None
             s["prior_precision"] = prior_precision(fused.var).tolist()
             s["sdf"] = sdf_rows(decoder, post.mu, points, sdf_true)
+            s["sdf"]["seen"] = seen_by_views(mesh, points.numpy(), views).tolist()
             precision = prior_precision(fused.var)
             s["energy_map"] = energy_parts(decoder, post.mu, fused.mu, precision, views, settings)
             s["energy_own_code"] = energy_parts(decoder, truth, fused.mu, precision, views, settings)
@@ -111,6 +128,20 @@ def shape_rows(args, predictor, fusion, world, codes, shape_id, with_vertices):
                 s.update(hidden_over_visible(mesh, std, views[0].world_to_cam))
                 s["shrink_seen_over_unseen"] = shrink_ratio(args, decoder, fusion, mu, var, world, shape_id, mode)
                 s["cut_over_full"] = cut_away_std(args, predictor, fusion, world, shape_id, mode, post, truth)
+                fit = args.stored.get(mode)
+                if fit and fit.get("seen"):  # the same three with the stored fit's seen / unseen floors
+                    std = calibrated_std(decoder, post, fused.var, mesh.vertices, mesh, views, fit)
+                    s["fitted"] = {
+                        "std_hidden_over_visible": hidden_over_visible(mesh, std, views[0].world_to_cam)[
+                            "std_hidden_over_visible"
+                        ],
+                        "shrink_seen_over_unseen": shrink_ratio(
+                            args, decoder, fusion, mu, var, world, shape_id, mode, fit
+                        ),
+                        "cut_over_full": cut_away_std(
+                            args, predictor, fusion, world, shape_id, mode, post, truth, fit=fit, full_var=fused.var
+                        ),
+                    }
             row[mode] = s
         rows.append(row)
     return rows
@@ -135,17 +166,26 @@ def sdf_rows(decoder, code, points, sdf_true):
     return {"abs_error": error.tolist(), "jacobian": g.tolist()}
 
 
-def shrink_ratio(args, decoder, fusion, mu, var, world, shape_id, mode):
-    """Median std shrink, views {0} -> {0, 6}, on vertices view 6 sees over the others (mesh of the 2-view MAP)."""
+def shrink_ratio(args, decoder, fusion, mu, var, world, shape_id, mode, fit=None):
+    """Median std shrink, views {0} -> {0, 6}, on vertices view 6 sees over the others (mesh of the 2-view MAP);
+    fit: a stored refinement calibration whose seen / unseen floors the std takes (None: the posterior's own)."""
     settings = RefineSettings(
         mode=mode, tolerance=args.tolerance, observation=ObservationSettings(size=args.size, grid=args.grid)
     )
-    posts = []
+    posts, priors, seen_by = [], [], []
     for chosen in ([0], [0, 6]):
         fused = fusion(mu[chosen], var[chosen])
-        posts.append(refine(decoder, fused.mu, fused.var, world_views(world.views_path(shape_id), chosen), settings))
+        seen_by.append(world_views(world.views_path(shape_id), chosen))
+        posts.append(refine(decoder, fused.mu, fused.var, seen_by[-1], settings))
+        priors.append(fused.var)
     mesh, _ = mesh_of(decoder, posts[1].mu)
-    before, after = (vertex_std(decoder, posts[1].mu, p.cov, mesh.vertices) for p in posts)
+    if fit is None:
+        before, after = (vertex_std(decoder, posts[1].mu, p.cov, mesh.vertices) for p in posts)
+    else:  # both posteriors' covariances at the 2-view MAP, as without the fit
+        before, after = (
+            calibrated_std(decoder, replace(p, mu=posts[1].mu), v, mesh.vertices, mesh, views, fit)
+            for p, v, views in zip(posts, priors, seen_by)
+        )
     seen = visible_vertices(mesh, camera_centre(world_views(world.views_path(shape_id), [6])[0].world_to_cam))
     shrink = before / np.maximum(after, 1e-12)
     return median_ratio(shrink, seen, ~seen)
@@ -190,6 +230,18 @@ def sdf_calibration(rows, key, scale, floor=0.0, temperature=1.0):
     return calibration_error(*calibration_curve(errors, (temperature * std.square() + floor**2).sqrt(), 20))
 
 
+def sdf_seen_calibration(rows, key, fit):
+    """SDF calibration error (all, seen, unseen samples) of the refined posteriors with a stored fit's seen model."""
+    errors, std = sdf_pool(rows, key, fit["information_scale"])
+    seen = torch.tensor([x for r in rows for x in r[key]["sdf"]["seen"]], dtype=torch.bool)
+    m = fit["seen"]
+    total = seen_floor_variance(std.square(), seen, m["sdf_temperature"], m["floor_seen"], m["floor_unseen"]).sqrt()
+    return tuple(
+        round(calibration_error(*calibration_curve(errors[k], total[k], 20)), 3) if k.any() else None
+        for k in (torch.ones_like(seen), seen, ~seen)
+    )
+
+
 def fit_sdf(val, mode, scale, misfit):
     """(T_sdf, floor) of the refined SDF variance at information scale s, fitted on the val rows at 1, 3, 10 views."""
     groups = [sdf_pool(sel, mode, scale) for n in VIEWS if (sel := [r for r in val if r["views"] == n])]
@@ -199,6 +251,16 @@ def fit_sdf(val, mode, scale, misfit):
         f"{max(before):.3f} -> {max(after):.3f})"
     )
     return temperature, floor
+
+
+def median_error_ratio(rows, key):
+    """Median |SDF error| of the refined code on the samples no view saw over that on the seen ones (None: no
+    visibility recorded)."""
+    if not all("seen" in r[key]["sdf"] for r in rows):
+        return None
+    e = np.array([x for r in rows for x in r[key]["sdf"]["abs_error"]])
+    seen = np.array([x for r in rows for x in r[key]["sdf"]["seen"]], dtype=bool)
+    return float(np.median(e[~seen]) / np.median(e[seen])) if seen.any() and (~seen).any() else None
 
 
 def below(record):
@@ -262,6 +324,10 @@ def summarise(path, misfit=None, stored=None):
                 )
                 if cli
                 else None,
+                "SDF CE stored seen fit (all, seen, unseen)": sdf_seen_calibration(sel, mode, cli)
+                if cli and cli.get("seen") and all("seen" in r[mode]["sdf"] for r in sel)
+                else None,
+                "|SDF error| median unseen / seen": median_error_ratio(sel, mode),
                 "fallbacks": sum(r[mode]["fallback"] is not None for r in sel),
                 "seconds": np.mean([r[mode]["seconds"] for r in sel]),
                 "E(MAP) < E(own code)": f"{sum(below(r[mode]) for r in sel)}/{len(sel)}",
@@ -272,10 +338,13 @@ def summarise(path, misfit=None, stored=None):
                 )
                 line["shrink seen/unseen (median)"] = np.median([r[mode]["shrink_seen_over_unseen"] for r in sel])
                 line["cut-away std crop/full (median)"] = np.median([r[mode]["cut_over_full"] for r in sel])
+                fitted = [r[mode]["fitted"] for r in sel if "fitted" in r[mode]]
+                for name in ("std_hidden_over_visible", "shrink_seen_over_unseen", "cut_over_full") if fitted else ():
+                    line[f"{name}, seen floors (median)"] = np.median([f[name] for f in fitted if f[name] is not None])
             print({k: round(v, 3) if isinstance(v, float) else v for k, v in line.items()})
 
 
-def cut_away_std(args, predictor, fusion, world, shape_id, mode, full, truth, keep=0.55):
+def cut_away_std(args, predictor, fusion, world, shape_id, mode, full, truth, keep=0.55, fit=None, full_var=None):
     """View 0 cropped to its top `keep` (a photo cut off at the seat): median std, on the own code's mesh
     vertices that fall in the cut-away part, of the refined posterior from the crop over that from the full view."""
     decoder = predictor.decoder
@@ -292,7 +361,14 @@ def cut_away_std(args, predictor, fusion, world, shape_id, mode, full, truth, ke
     mesh, _ = mesh_of(decoder, truth)
     uv, _ = project(np.asarray(mesh.vertices), view.K, view.world_to_cam)
     away = uv[:, 1] >= box[2]
-    stds = [vertex_std(decoder, p.mu, p.cov, mesh.vertices) for p in (cut, full)]
+    if fit is None:
+        stds = [vertex_std(decoder, p.mu, p.cov, mesh.vertices) for p in (cut, full)]
+    else:  # seen decided on the own code's mesh, the one the ratio is read on
+        crop = crop_view(view, box, (box[2], w))
+        stds = [
+            calibrated_std(decoder, p, v, mesh.vertices, mesh, [seen], fit)
+            for p, v, seen in ((cut, fused.var, crop), (full, full_var, view))
+        ]
     return float(np.median(stds[0][away]) / np.median(stds[1][away])) if away.any() else None
 
 
@@ -316,11 +392,16 @@ def main():
         help="with --summary: the run's sdf_decoder_misfit (temperature.json): the SDF CE with it as a floor, and "
         "with the refined SDF variance's (T_sdf, floor <= misfit) fitted on the val rows",
     )
-    parser.add_argument("--calibration", help="with --summary: a refinement_calibration.json to apply to the test rows")
+    parser.add_argument(
+        "--calibration",
+        help="a refinement_calibration.json: with --summary, applied to the test rows; when measuring, the locality "
+        "ratios are also taken with its seen / unseen floors (rows' 'fitted')",
+    )
     args = parser.parse_args()
     if args.summary:
         return summarise(args.out, args.misfit, args.calibration)
     args.views = [int(n) for n in args.views.split(",")]
+    args.stored = json.load(open(args.calibration)) if args.calibration else {}
     unknown = sorted(set(args.views) - set(VIEWS))
     if unknown:
         parser.error(f"--views {unknown}: the measured view sets are {list(VIEWS)}")

@@ -8,7 +8,9 @@ import torch
 from ushape.recalibration.refine_information import (
     fit_information_scale,
     fit_sdf_recalibration,
+    fit_sdf_recalibration_seen,
     scaled_posterior_std,
+    seen_floor_variance,
 )
 
 
@@ -58,3 +60,31 @@ def test_the_refined_sdf_variance_gets_back_a_known_factor_and_floor():
     assert max(after) < 0.03 and min(before) > 0.15  # within a grid step of calibrated, from far over-confident
     with pytest.raises(ValueError, match="at least one"):
         fit_sdf_recalibration([], misfit=0.01)
+
+
+def test_seen_and_unseen_floors_drawn_apart_are_recovered_each_calibrated():
+    # The errors carry T var + floor^2 with a small floor where a view saw the point and a larger one elsewhere;
+    # one floor for all would be too wide on the seen points and too narrow on the unseen ones.
+    gen = torch.Generator().manual_seed(5)
+    factor, seen_floor, unseen_floor, groups = 1.0, 0.0025, 0.01, []
+    for spread in (0.004, 0.002, 0.001):
+        std = torch.rand(1500, generator=gen, dtype=torch.float64) * spread + 1e-4
+        seen = torch.rand(1500, generator=gen) < 0.6
+        scale = seen_floor_variance(std.square(), seen, factor, seen_floor, unseen_floor).sqrt()
+        groups.append(((scale * torch.randn(1500, generator=gen, dtype=torch.float64)).abs(), std, seen))
+    fit = fit_sdf_recalibration_seen(groups, misfit=0.01, grid=tuple(2.0 ** (k / 2) for k in range(-4, 5)))
+    # The floors tried are 2^(1/2) apart up to the misfit (0.0025 and 0.01 are on the grid).
+    assert fit["floor_seen"] == pytest.approx(seen_floor, rel=0.45)
+    assert fit["floor_unseen"] == pytest.approx(unseen_floor, rel=0.45)
+    assert max(fit["after_seen"] + fit["after_unseen"]) < 0.04 and min(fit["before"]) > 0.15
+    one = fit_sdf_recalibration([(e, s) for e, s, _ in groups], misfit=0.01)  # a single floor: worse per part
+    pooled = [
+        float((e[k] / (one[0] * s[k].square() + one[1] ** 2).sqrt() < 0.6745).double().mean())
+        for e, s, seen in groups
+        for k in (seen, ~seen)
+    ]  # the fraction inside the 50 % interval, seen then unseen: far from 0.5 on one side or both
+    assert max(abs(p - 0.5) for p in pooled) > 0.1
+    with pytest.raises(ValueError, match="at least one"):
+        fit_sdf_recalibration_seen([], misfit=0.01)
+    with pytest.raises(ValueError, match="must be equal"):
+        fit_sdf_recalibration_seen([(torch.ones(3), torch.ones(3), torch.ones(2, dtype=torch.bool))], misfit=0.01)

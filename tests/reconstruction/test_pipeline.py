@@ -281,6 +281,9 @@ def test_fit_refinement_stores_a_calibration_that_the_refinement_then_applies(ti
         # T = 1 and no floor are on the grids: the fit is never worse on val than none.
         assert max(record["sdf_calibration_after"]) <= max(record["sdf_calibration_before"])
         assert record["latent_calibration_after"] <= record["latent_calibration_before"]
+        seen = record["seen"]  # the floors where the views saw the sample and where they did not
+        assert seen["floor_seen"] in floor_grid(misfit) and seen["floor_unseen"] in floor_grid(misfit)
+        assert seen["floor_seen"] <= seen["floor_unseen"] and all(0 < f < 1 for f in seen["seen_fraction"])
         assert read_refinement_calibration(checkpoint, "masks") == record
         assert read_refinement_calibration(checkpoint, "depth") is None
         views = sorted((tiny_run["world"] / "renders" / "test_0").glob("*.png"))[:2]
@@ -290,6 +293,8 @@ def test_fit_refinement_stores_a_calibration_that_the_refinement_then_applies(ti
         assert applied["information_scale"] == record["information_scale"] and applied["size"] == 12
         assert summary["sdf_temperature"] == record["sdf_temperature"]
         assert summary["sdf_floor"] == (record["sdf_floor"] or None)
+        assert applied["seen"] == seen and 0 < summary["refinement"]["seen_vertices"] < 1
+        assert summary["mesh"]["std_mean"] >= seen["floor_seen"] * (1 - 1e-6)  # every vertex carries a floor
         run = type("Run", (), {"predictor": sphere_predictor})()
         method = RefineMethod("masks", size=12, calibrated=True)
         assert method.settings_for(run).information_scale == record["information_scale"]

@@ -37,18 +37,19 @@ from ushape.propagation.mesh import METHODS, vertex_uncertainty
 from ushape.propagation.monte_carlo import sample_codes
 from ushape.propagation.sphere_tracing import DepthStats
 from ushape.recalibration import apply_temperature
+from ushape.recalibration.refine_information import seen_floor_variance
 from ushape.reconstruction.export import DEFAULT_CMAP, coloured_mesh, write_mesh_files
 from ushape.reconstruction.figures import depth_figure, overview_figure
 from ushape.reconstruction.predictor import Predictor
 from ushape.reconstruction.refine_calibration import read_refinement_calibration
-from ushape.reconstruction.visibility import hidden_over_visible
+from ushape.reconstruction.visibility import hidden_over_visible, seen_by_views
 from ushape.refinement import MODES as REFINE_MODES
 from ushape.refinement import ObservationSettings, ObservedView, RefineSettings, refine
 from ushape.refinement.inputs import input_views
 
 log = logging.getLogger(__name__)
 # What summary.json's refinement record keeps of the calibration it applied (reconstruct.py --fit-refinement).
-APPLIED = ("information_scale", "sdf_temperature", "sdf_floor", "size", "n_shapes")
+APPLIED = ("information_scale", "sdf_temperature", "sdf_floor", "seen", "size", "n_shapes")
 
 CANONICAL_CAMERA = {"azimuth_deg": 45.0, "elevation_deg": 27.5, "distance": 2.8, "fov_deg": R2N2_FOV_DEG}
 SUMMARY_FILE = "summary.json"
@@ -154,11 +155,13 @@ def reconstruct(
     # Monte Carlo stays fp32: its std is the spread of M rounded SDFs, and bf16's rounding floor moved
     # the vertex std of the trained quickstart decoder by 0.4 % at latent var 0.01, 1.0 % at 1e-3 and
     # 1.9 % at 1e-4 (median): the 2 % contract would break for a confident posterior.
-    prior, refinement = fused, None
+    prior, refinement, refined_views = fused, None, []
     if settings.refine is not None:
         with timer("refine"):
             calibration = read_refinement_calibration(predictor.checkpoint, settings.refine)
-            fused, refinement = refined(decoder, fused, inputs, paths, observations, settings, calibration)
+            fused, refinement, refined_views = refined(
+                decoder, fused, inputs, paths, observations, settings, calibration
+            )
     with timer("mesh"):
         mesh, stats = mean_mesh(decoder, fused.mu, settings.resolution, bf16)
     with timer("vertex_uncertainty"):
@@ -173,8 +176,23 @@ def reconstruct(
             generator,
             bf16=bf16 and settings.uncertainty == "linearised",
         )
+        floors = seen_floors(refinement)
         sdf_t = sdf_temperature(fusion, predictor, refinement)
-        if sdf_t is not None:  # the SDF-space recalibration (`fit_and_store_temperature`)
+        if floors is not None:  # the refinement's fit with a floor where the views saw the surface, one where not
+            seen_vertices = torch.as_tensor(seen_by_views(mesh, mesh.vertices, refined_views, floors["tolerance"]))
+            std = (
+                seen_floor_variance(
+                    std.double().square(),
+                    seen_vertices,
+                    floors["sdf_temperature"],
+                    floors["floor_seen"],
+                    floors["floor_unseen"],
+                )
+                .sqrt()
+                .float()
+            )
+            refinement["seen_vertices"] = float(seen_vertices.float().mean()) if len(seen_vertices) else None
+        elif sdf_t is not None:  # the SDF-space recalibration (`fit_and_store_temperature`)
             std = apply_temperature(std.square(), sdf_t).sqrt()
         std = std.numpy()
     with timer("write_mesh"):
@@ -223,6 +241,14 @@ def sdf_temperature(fusion: Fusion, predictor: Predictor, refinement: dict | Non
     return predictor.sdf_temperature if own is None else own
 
 
+def seen_floors(refinement: dict | None) -> dict | None:
+    """The refinement's fitted variance with its floors where the views saw the surface and where they did not
+    (`refine_calibration`'s "seen"), or None: no refinement, a fallback to the prior, or a fit stored before it."""
+    if refinement is None or refinement.get("fallback") is not None:
+        return None
+    return (refinement.get("calibration") or {}).get("seen")
+
+
 def sdf_floor(fusion: Fusion, refinement: dict | None = None) -> float | None:
     """The std added to that SDF variance, T var + floor^2: the refinement's fitted floor, or the fusion rule's."""
     if refinement is not None:
@@ -238,9 +264,10 @@ def refined(
     observations: Sequence[ObservedView | None] | None,  # one per input
     settings: ReconstructionSettings,
     calibration: dict[str, Any] | None = None,  # --fit-refinement's fit for this mode (None: none)
-) -> tuple[FusedCode, dict[str, Any]]:
-    """The fused code refined on the views (FusedCode with var the full covariance [D, D]) and its record; with
-    a calibration, the posterior at its information scale s, and the record carries the calibration."""
+) -> tuple[FusedCode, dict[str, Any], list[ObservedView]]:
+    """The fused code refined on the views (FusedCode with var the full covariance [D, D]), its record and the
+    views it was refined on; with a calibration, the posterior at its information scale s, and the record
+    carries the calibration."""
     if observations is None:
         views = input_views(paths)
     elif len(observations) != len(inputs):
@@ -262,11 +289,12 @@ def refined(
     options = RefineSettings(mode=settings.refine, observation=observation, information_scale=scale)
     posterior = refine(decoder, fused.mu, fused.var, views, options)
     record = {"mode": settings.refine, "views_with_camera": sum(v is not None for v in views), **posterior.record()}
-    record["calibration"] = None if calibration is None else {k: calibration[k] for k in APPLIED}
+    record["calibration"] = None if calibration is None else {k: calibration.get(k) for k in APPLIED}
     record["mu"] = posterior.mu.tolist()
+    views = [v for v in views if v is not None]
     if posterior.fallback is not None:  # the prior exactly, in its own (diagonal) form
-        return fused, record
-    return FusedCode(posterior.mu, posterior.cov, fused.kept), record
+        return fused, record, views
+    return FusedCode(posterior.mu, posterior.cov, fused.kept), record, views
 
 
 def mean_mesh(
@@ -369,7 +397,9 @@ def write_summary(
         "temperature": predictor.temperature,
         "sdf_temperature": sdf_temperature(fusion, predictor, refinement),
         # The std the calibrated SDF variance adds, T var + floor^2 (fitted with T for the fusion rule, or for the
-        # refinement); the same at every point, so the mesh's std files leave it out (None: no floor).
+        # refinement); the same at every point, so the mesh's std files leave it out (None: no floor). A refinement
+        # fitted with a floor where the views saw the surface and one where they did not puts those in the mesh's
+        # std instead (refinement.calibration.seen, and the fraction of vertices seen, refinement.seen_vertices).
         "sdf_floor": sdf_floor(fusion, refinement),
         "fusion": getattr(fusion, "name", type(fusion).__name__),
         "fusion_calibration": getattr(fusion, "calibration", None),

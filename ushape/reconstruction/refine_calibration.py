@@ -7,11 +7,18 @@ fits on the val split correct it, each by what it is scored on:
     codes against the shapes' own codes (`refine_information.fit_information_scale`);
   - SDF: the factor and floor of the SDF variance propagated from that posterior, T_sdf var + floor^2 (floor
     between 0 and the decoder's own misfit), by the worst calibration error over the val shapes refined on
-    1, 3 and 10 views (`refine_information.fit_sdf_recalibration`).
+    1, 3 and 10 views (`refine_information.fit_sdf_recalibration`); used where the points' visibility is not
+    known (eval.py's tables);
+  - SDF where a view saw the point and where none did: the same variance with two floors, fitted so that the
+    seen and the unseen points are each calibrated (`refine_information.fit_sdf_recalibration_seen`; a point
+    is seen when an observed pixel shows it and the refined mesh does not hide it,
+    `visibility.seen_by_views`); reconstruct.py's mesh std applies it.
 The prior refined is the run's default fusion of the views (`shared` where --fit-temperature fitted it),
 as reconstruct.py refines it. `refinement_calibration.json` = {mode: {"information_scale", "sdf_temperature",
 "sdf_floor", "latent_calibration_before", "latent_calibration_after", "sdf_calibration_before",
-"sdf_calibration_after", "sdf_decoder_misfit", "view_counts", "n_shapes", "size", "fusion", "fallbacks"}}.
+"sdf_calibration_after", "sdf_decoder_misfit", "seen", "view_counts", "n_shapes", "size", "fusion", "fallbacks"}},
+"seen" = {"sdf_temperature", "floor_seen", "floor_unseen", "sdf_calibration_after", "seen_after", "unseen_after",
+"seen_fraction", "tolerance"}.
 """
 
 from __future__ import annotations
@@ -26,12 +33,19 @@ from ushape import atomic
 from ushape.data.layout import WorldIndex, read_split
 from ushape.data.sdf_dataset import sdf_points
 from ushape.decoder.artifacts import codes_file, load_codes
+from ushape.decoder.query import code_sdf_fn, frozen
 from ushape.encoder.datamodule import view_files
+from ushape.mesh.extraction import extract_mesh
 from ushape.propagation import clamped_sdf_errors
-from ushape.recalibration.refine_information import fit_information_scale, fit_sdf_recalibration
+from ushape.recalibration.refine_information import (
+    fit_information_scale,
+    fit_sdf_recalibration,
+    fit_sdf_recalibration_seen,
+)
 from ushape.reconstruction.calibrated_fusion import default_fusion
 from ushape.reconstruction.predictor import Predictor
 from ushape.reconstruction.temperature_store import decoder_misfit
+from ushape.reconstruction.visibility import SEEN_TOLERANCE, seen_by_views
 from ushape.refinement import ObservationSettings, RefineSettings, refine
 from ushape.refinement.inputs import input_views
 from ushape.refinement.posterior import prior_precision
@@ -39,6 +53,8 @@ from ushape.refinement.posterior import prior_precision
 CALIBRATION_FILE = "refinement_calibration.json"
 # How many of a val shape's views the refinement is fitted on at a time (Table V's counts).
 VIEW_COUNTS = (1, 3, 10)
+# The refined code's mesh, on which a point's visibility from the views is decided.
+MESH_RESOLUTION = 64
 
 
 def spread_views(n_views: int, n: int) -> list[int] | None:
@@ -58,12 +74,25 @@ def read_refinement_calibration(checkpoint: str | Path, mode: str) -> dict[str, 
     return json.loads(path.read_text()).get(mode)
 
 
+def seen_model(checkpoint: str | Path, observes: str) -> dict[str, Any]:
+    """The seen model ({"sdf_temperature", "floor_seen", "floor_unseen", ...}) fitted for the mode a view is
+    refined on (masks where nothing is: the silhouette is what a view would add), with its information scale."""
+    mode = "depth" if observes == "depth" else "masks"
+    fit = read_refinement_calibration(checkpoint, mode)
+    if fit is None or not fit.get("seen"):
+        raise ValueError(
+            f"no seen model fitted for {mode} beside {checkpoint}: run `reconstruct.py --fit-refinement {mode} "
+            "--run RUN` (a fit stored before the seen model has none: refit it)"
+        )
+    return {**fit["seen"], "information_scale": fit["information_scale"]}
+
+
 def refined_val_shapes(
     predictor: Predictor, world: WorldIndex, codes, fusion, settings: RefineSettings, n_shapes: int, n_points: int
 ) -> tuple[list[dict], int, list[str]]:
     """Per refined (val shape, view set): n, |z* - z_own| [D], the prior precision and J^T W J [D, D], the SDF
-    samples; with the number that fell back (left out) and the shapes used. codes: the val shapes' own codes;
-    fusion: the rule that makes each prior."""
+    samples and which of them the views saw; with the number that fell back (left out) and the shapes used.
+    codes: the val shapes' own codes; fusion: the rule that makes each prior."""
     shapes = world.shape_ids("val")[:n_shapes]
     refined, fallbacks = [], 0
     for shape_id in shapes:
@@ -89,23 +118,31 @@ def refined_val_shapes(
                     "precision": prior_precision(fused.var),
                     "information": post.information,
                     "sdf": (points, sdf_true),
+                    "seen": torch.as_tensor(seen_by_views(refined_mesh(predictor.decoder, post.mu), points, views)),
                 }
             )
     return refined, fallbacks, shapes
 
 
-def sdf_groups(decoder, refined: list[dict], scale: float) -> list[tuple[torch.Tensor, torch.Tensor]]:
-    """Per view count: (|SDF error| [P], std [P]) of the posteriors at information scale s, linearised and clamped
-    as the evaluation propagates them."""
+def refined_mesh(decoder, code: torch.Tensor):
+    """The mesh of a refined code, at which its points' visibility is decided."""
+    with frozen(decoder):
+        mesh, _ = extract_mesh(code_sdf_fn(decoder, code), MESH_RESOLUTION)
+    return mesh
+
+
+def sdf_groups(decoder, refined: list[dict], scale: float) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
+    """Per view count: (|SDF error| [P], std [P], seen [P]) of the posteriors at information scale s, linearised and
+    clamped as the evaluation propagates them."""
     groups = []
     for n in VIEW_COUNTS:
-        errors, stds = [], []
+        errors, stds, seen = [], [], []
         for r in (r for r in refined if r["n"] == n):
             cov = torch.linalg.inv(r["precision"] + scale * r["information"].double()).float()
             e, s = clamped_sdf_errors(decoder, r["mu"][None], cov[None], *r["sdf"])
-            errors.append(e.reshape(-1)), stds.append(s.reshape(-1))
+            errors.append(e.reshape(-1)), stds.append(s.reshape(-1)), seen.append(r["seen"])
         if errors:
-            groups.append((torch.cat(errors), torch.cat(stds)))
+            groups.append((torch.cat(errors), torch.cat(stds), torch.cat(seen)))
     return groups
 
 
@@ -132,7 +169,9 @@ def fit_refinement_calibration(
         [r["error"] for r in refined], [r["precision"] for r in refined], [r["information"] for r in refined]
     )
     misfit = decoder_misfit(predictor, index, torch.stack([codes.lookup(s) for s in shapes]), shapes, n_points)
-    temperature, floor, before, after = fit_sdf_recalibration(sdf_groups(predictor.decoder, refined, scale), misfit)
+    groups = sdf_groups(predictor.decoder, refined, scale)
+    temperature, floor, before, after = fit_sdf_recalibration([(e, s) for e, s, _ in groups], misfit)
+    seen = fit_sdf_recalibration_seen(groups, misfit)
     return {
         "information_scale": scale,
         "latent_calibration_before": latent_before,
@@ -142,6 +181,16 @@ def fit_refinement_calibration(
         "sdf_calibration_before": before,
         "sdf_calibration_after": after,
         "sdf_decoder_misfit": misfit,
+        "seen": {
+            "sdf_temperature": seen["sdf_temperature"],
+            "floor_seen": seen["floor_seen"],
+            "floor_unseen": seen["floor_unseen"],
+            "sdf_calibration_after": seen["after"],
+            "seen_after": seen["after_seen"],
+            "unseen_after": seen["after_unseen"],
+            "seen_fraction": [float(s.float().mean()) for _, _, s in groups],
+            "tolerance": SEEN_TOLERANCE,
+        },
         "view_counts": sorted({r["n"] for r in refined}),
         "n_shapes": len(shapes),
         "size": size,
