@@ -20,6 +20,7 @@ from ushape.planning.information import (
     candidate_information,
     information_gain,
     predicted_view,
+    seen_floor_drop,
     surface_variance_drop,
 )
 from ushape.planning.observers import build_observer
@@ -130,6 +131,32 @@ def test_the_surface_score_also_takes_the_view_of_the_unpinned_axis():
     steps = active_reconstruction(views, encode, strategy, AxesDecoder(), 2, start=0, observe=observer)
     assert [s.view for s in steps] == [0, 2]
     assert steps[1].scores[2] > 3.0 * steps[1].scores[1] > 0 and steps[1].surface is not None
+
+
+def test_the_floor_drop_counts_the_area_a_candidate_would_see_first():
+    visible = np.array([[True, True, False], [False, True, True]])  # two candidates, three vertices
+    drop = seen_floor_drop(visible, np.array([True, False, False]), np.array([1.0, 2.0, 4.0]), 0.1, 0.3)
+    np.testing.assert_allclose(drop, [0.08 * 2.0, 0.08 * 6.0])  # (0.3^2 - 0.1^2) x the unseen area it shows
+
+
+def test_the_seen_score_is_the_surface_score_plus_what_its_floors_lose():
+    """With no floor gap it ranks as information-surface (x T); with the code's part off (T = 0) it takes the
+    view of the surface nothing has seen, the back (-z), over the side (+x), which shows half of it."""
+    views = candidates(["+z", "-z", "+x"])
+    encode = lambda i: (torch.zeros(3), torch.ones(3))  # noqa: E731
+    observer = build_observer("masks", size=SIZE, iterations=20)
+
+    def second_step(name, **floors):
+        strategy = build_strategy(name, size=SIZE, **({"floors": floors} if floors else {}))
+        return active_reconstruction(views, encode, strategy, AxesDecoder(), 2, start=0, observe=observer)[1]
+
+    plain = second_step("information-surface")
+    flat = second_step("information-seen", sdf_temperature=2.0, floor_seen=0.01, floor_unseen=0.01)
+    np.testing.assert_allclose(flat.scores, 2.0 * plain.scores, rtol=1e-6)
+    floors_only = second_step("information-seen", sdf_temperature=0.0, floor_seen=0.0, floor_unseen=0.1)
+    assert floors_only.view == 1 and floors_only.scores[1] > 1.5 * floors_only.scores[2] > 0
+    with pytest.raises(ValueError, match="--fit-refinement"):
+        build_strategy("information-seen", size=SIZE)
 
 
 def test_a_predicted_depth_also_constrains_the_axis_along_the_view():

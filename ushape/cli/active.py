@@ -32,11 +32,12 @@ from ushape.evaluation.plots import save_figure
 from ushape.planning import ViewEncoder, active_reconstruction, build_strategy, candidate_views
 from ushape.planning.candidates import SOURCES
 from ushape.planning.figures import sequence_figure, step_surfaces
-from ushape.planning.information import INFORMATION_STRATEGIES
+from ushape.planning.information import INFORMATION_STRATEGIES, SeenInformationGain
 from ushape.planning.observers import OBSERVERS, build_observer
 from ushape.planning.strategies import STRATEGIES
 from ushape.reconstruction.export import write_mesh_files
 from ushape.reconstruction.predictor import load_predictor
+from ushape.reconstruction.refine_calibration import seen_model
 
 DEFAULT_OUT = Path("outputs") / "active"
 
@@ -113,6 +114,8 @@ def run_active(args: argparse.Namespace) -> dict:
             f"--refine-size and --refine-iterations must be >= 1, got {args.refine_size}, {args.refine_iterations}"
         )
     options = {"size": args.refine_size} if args.strategy in INFORMATION_STRATEGIES else {}
+    if args.strategy == SeenInformationGain.name:
+        options["floors"] = seen_model(predictor.checkpoint, args.observe)
     strategy = build_strategy(args.strategy, args.seed, **options)
     observer = build_observer(args.observe, size=args.refine_size, iterations=args.refine_iterations)
     steps = active_reconstruction(candidates, encode, strategy, predictor.decoder, args.views, start, observe=observer)

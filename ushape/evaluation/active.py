@@ -27,9 +27,10 @@ from ushape.evaluation.tables import Table, encoder_order
 from ushape.planning import ViewEncoder, active_reconstruction, build_strategy, candidate_views
 from ushape.planning.candidates import SOURCES
 from ushape.planning.figures import sequence_figure, step_surfaces
-from ushape.planning.information import INFORMATION_STRATEGIES
+from ushape.planning.information import INFORMATION_STRATEGIES, SeenInformationGain
 from ushape.planning.observers import OBSERVERS, FusedGaussian, build_observer
 from ushape.planning.strategies import STRATEGIES
+from ushape.reconstruction.refine_calibration import seen_model
 
 log = logging.getLogger(__name__)
 
@@ -80,7 +81,7 @@ def observer_for(settings, name: str):
 def sequence(run, settings, candidates, encode, name: str, observer, true_code):
     """One strategy's steps on one shape (from the shared start view), under one observer."""
     strategy = build_strategy(
-        name, settings.seed, true_code if name == "oracle" else None, **strategy_options(settings, name)
+        name, settings.seed, true_code if name == "oracle" else None, **strategy_options(settings, name, run, observer)
     )
     return active_reconstruction(
         candidates,
@@ -94,8 +95,15 @@ def sequence(run, settings, candidates, encode, name: str, observer, true_code):
     )
 
 
-def strategy_options(settings, name: str) -> dict:
-    return {"size": settings.active_refine_size} if name in INFORMATION_STRATEGIES else {}
+def strategy_options(settings, name: str, run=None, observer=None) -> dict:
+    """The information strategies' rays per side; information-seen's floors, the run's seen model fitted for what
+    the loop observes (masks where it observes nothing)."""
+    if name not in INFORMATION_STRATEGIES:
+        return {}
+    options = {"size": settings.active_refine_size}
+    if name == SeenInformationGain.name:
+        options["floors"] = seen_model(run.predictor.checkpoint, getattr(observer, "name", "none"))
+    return options
 
 
 def active_records(run, settings, codes: CodeTable) -> tuple[list[dict], list[dict]]:

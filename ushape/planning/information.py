@@ -193,4 +193,48 @@ class SurfaceInformationGain(InformationGain):
         return scores
 
 
-INFORMATION_STRATEGIES = (InformationGain.name, SurfaceInformationGain.name)  # scored on predicted rows
+def seen_floor_drop(
+    visible: np.ndarray,  # [C, V] bool: candidate c would see vertex v
+    seen: np.ndarray,  # [V] bool: a view taken sees vertex v
+    area: np.ndarray,  # [V] the surface each vertex stands for
+    floor_seen: float,
+    floor_unseen: float,
+) -> np.ndarray:  # [C]
+    """sum_v area_v (floor_unseen^2 - floor_seen^2) over the vertices candidate c would see that no view taken
+    sees: the SDF variance the floors of the refined posterior would lose there (`refine_calibration`'s seen
+    model: the error the decoder's code cannot carry, pinned where a view saw the surface)."""
+    newly = np.asarray(visible, bool) & ~np.asarray(seen, bool)[None]
+    return (floor_unseen**2 - floor_seen**2) * (newly * np.asarray(area, np.float64)[None]).sum(axis=1)
+
+
+class SeenInformationGain(SurfaceInformationGain):
+    """`SurfaceInformationGain` on the refined posterior's SDF variance as the mesh is drawn with a fitted seen
+    model, T g^T Sigma g + floor^2 (floor_seen where a view taken sees the vertex, floor_unseen elsewhere): a
+    candidate's score is T times the variance its predicted rows take off the code's part, plus what its first
+    sight of unseen surface takes off the floors (`seen_floor_drop`). floors: {"sdf_temperature", "floor_seen",
+    "floor_unseen"} of a run's `reconstruct.py --fit-refinement` fit."""
+
+    name = "information-seen"
+
+    def __init__(self, floors: dict | None = None, **options) -> None:
+        if floors is None or not all(k in floors for k in ("sdf_temperature", "floor_seen", "floor_unseen")):
+            raise ValueError(
+                "information-seen needs the run's fitted seen model: run `reconstruct.py --fit-refinement "
+                "masks|depth --run RUN` first (it stores refinement_calibration.json beside the checkpoint)"
+            )
+        super().__init__(**options)
+        self.floors = floors
+
+    def scores(self, state) -> np.ndarray:  # state: ushape.planning.loop.PlanState
+        surface = state.surface
+        latent = super().scores(state)
+        if surface is None:
+            return latent
+        f = self.floors
+        return f["sdf_temperature"] * latent + seen_floor_drop(
+            surface.visible, surface.seen, surface.area, f["floor_seen"], f["floor_unseen"]
+        )
+
+
+# Scored on predicted rows (their options: rays per side `size`, the residuals' stds; information-seen: `floors`).
+INFORMATION_STRATEGIES = (InformationGain.name, SurfaceInformationGain.name, SeenInformationGain.name)

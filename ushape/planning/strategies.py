@@ -8,6 +8,9 @@
   current mean through its camera, under the current covariance (ushape.planning.information).
 - information-surface: the same predicted rows scored by the SDF variance they would take off the current
   surface, area-weighted, rather than by the log det over every code direction.
+- information-seen: information-surface on the variance the refined mesh is drawn with under the run's fitted
+  seen model (a floor where a view saw the surface, a larger one where none did), so a candidate also gains
+  for the unseen surface it would show (`reconstruct.py --fit-refinement` fits the floors).
 - oracle: the candidate whose image brings the fused code closest to the shape's own code. It looks at
   every candidate's image and at the answer, so it is no strategy a robot could run: it bounds how much
   any choice of views can give with this encoder.
@@ -22,7 +25,12 @@ import torch
 from torch import Tensor
 
 from ushape.planning.criteria import angular_gap, uncertain_surface, unseen_uncertain_surface
-from ushape.planning.information import INFORMATION_STRATEGIES, InformationGain, SurfaceInformationGain
+from ushape.planning.information import (
+    INFORMATION_STRATEGIES,
+    InformationGain,
+    SeenInformationGain,
+    SurfaceInformationGain,
+)
 from ushape.planning.loop import Encode, Fusion, PlanState
 
 
@@ -108,6 +116,7 @@ STRATEGIES = {
         RandomView,
         InformationGain,
         SurfaceInformationGain,
+        SeenInformationGain,
     )
 }  # what a robot can run; the oracle needs the answer
 
