@@ -7,6 +7,7 @@ import torch
 from ushape.metrics.calibration import (
     calibration_curve,
     calibration_error,
+    calibration_error_interval,
     plot_calibration,
     probability_levels,
     two_sided_quantile,
@@ -103,3 +104,22 @@ def test_plot_has_diagonal_and_one_line_per_method(tmp_path):
     assert (tmp_path / "calibration.png").stat().st_size > 1000
     with pytest.raises(ValueError, match="no curves"):
         plot_calibration({})
+
+
+def test_the_shape_bootstrap_interval_holds_the_pooled_error_and_widens_with_shapes_that_disagree():
+    gen = torch.Generator().manual_seed(0)
+    errors = [(torch.randn(500, generator=gen, dtype=torch.float64)).abs() for _ in range(8)]
+    sigmas = [torch.ones(500, dtype=torch.float64) for _ in range(8)]
+    pooled = calibration_error(*calibration_curve(torch.cat(errors), torch.cat(sigmas), 20))
+    low, high = calibration_error_interval(errors, sigmas)
+    assert low <= pooled <= high and high < 0.05  # calibrated shapes: a narrow interval near 0
+    # One shape repeated: every draw is the same data, so the interval is the error itself.
+    same = calibration_error_interval([errors[0]] * 5, [sigmas[0]] * 5)
+    one = calibration_error(*calibration_curve(errors[0], sigmas[0], 20))
+    assert same == pytest.approx((one, one))
+    # Half the shapes 3x over-confident: which half a draw holds moves the error a lot.
+    mixed = [e * (3.0 if i % 2 else 1.0) for i, e in enumerate(errors)]
+    low_mixed, high_mixed = calibration_error_interval(mixed, sigmas)
+    assert high_mixed - low_mixed > 3 * (high - low)
+    with pytest.raises(ValueError, match="per shape"):
+        calibration_error_interval([], [])

@@ -23,7 +23,12 @@ from ushape.evaluation.methods import log_fallbacks, stack_variances
 from ushape.evaluation.views import Estimate
 from ushape.fusion.rules import FusedCode
 from ushape.fusion.subsets import view_subsets
-from ushape.metrics.calibration import calibration_curve, calibration_error, two_sided_quantile
+from ushape.metrics.calibration import (
+    calibration_curve,
+    calibration_error,
+    calibration_error_interval,
+    two_sided_quantile,
+)
 from ushape.propagation import clamped_sdf_errors
 
 FusionRule = Callable[[Tensor, Tensor], FusedCode]  # (mu [V, D], var [V, D]) -> fused Gaussian
@@ -125,8 +130,10 @@ def calibration_across_views(
             row.update(
                 {f"latent_{k}": v for k, v in interval_scores(torch.cat(latent_err), torch.cat(latent_std)).items()}
             )
+            row["latent_calibration_error_90"] = calibration_error_interval(latent_err, latent_std, seed=seed + n)
             if sdf is not None:
                 row.update({f"sdf_{k}": v for k, v in interval_scores(torch.cat(sdf_err), torch.cat(sdf_std)).items()})
+                row["sdf_calibration_error_90"] = calibration_error_interval(sdf_err, sdf_std, seed=seed + n)
             rows.append(row)
     return rows
 
@@ -236,6 +243,11 @@ def view_calibration_protocol(run, settings, encodings, codes, draws: int = 6, a
     return [{"encoder": run.spec.name, "label": run.spec.label, **row} for row in rows]
 
 
+def span(interval: Sequence[float] | None) -> str:
+    """'0.031-0.072': an interval as a table cell ('-' where none was computed)."""
+    return "-" if interval is None else f"{interval[0]:.3f}-{interval[1]:.3f}"
+
+
 def table_view_calibration(rows: Sequence[dict]):
     """Table V: calibration across views, per encoder, fusion rule and number of fused views."""
     from ushape.evaluation.tables import Table
@@ -247,14 +259,24 @@ def table_view_calibration(rows: Sequence[dict]):
         "dimension) and its ground-truth SDF samples (linearised propagation, SDF temperature applied: the "
         "shared rule's own, fitted on its fused val variance, the single-view one for the others). CE: "
         "calibration error; err/var: mean squared error over mean variance (1 when calibrated); cov90: "
-        "coverage of the 90 % interval. Bayesian treats the views' errors as independent; shared adds back "
-        "the error they share (fitted on val).",
-        ["Method", "Fusion", "views", "shapes", "latent CE", "latent err/var", "latent cov90", "SDF CE", "SDF err/var"]
-        + ["SDF cov90"],
+        "coverage of the 90 % interval; CE 90 %: the central 90 % of the CE over the test shapes drawn with "
+        "replacement (how far another draw of as many shapes could move it). Bayesian treats the views' errors "
+        "as independent; shared adds back the error they share (fitted on val).",
+        ["Method", "Fusion", "views", "shapes", "latent CE", "latent CE 90 %", "latent err/var", "latent cov90"]
+        + ["SDF CE", "SDF CE 90 %", "SDF err/var", "SDF cov90"],
     )
     for r in rows:
         table.rows.append(
             [r["label"], r["fusion"], r["n_views"], r["n_shapes"]]
-            + [r[f"{s}_{m}"] for s in ("latent", "sdf") for m in ("calibration_error", "error_over_var", "coverage90")]
+            + [
+                value
+                for s in ("latent", "sdf")
+                for value in (
+                    r[f"{s}_calibration_error"],
+                    span(r.get(f"{s}_calibration_error_90")),
+                    r[f"{s}_error_over_var"],
+                    r[f"{s}_coverage90"],
+                )
+            ]
         )
     return table

@@ -8,7 +8,7 @@ quantile, Pr(|X| <= Q(p)) = p, i.e. Q(p) = Phi^-1((1 + p) / 2), so Q(0.9973) = 3
 
 from __future__ import annotations
 
-from typing import Mapping
+from typing import Mapping, Sequence
 
 import torch
 from torch import Tensor
@@ -66,6 +66,37 @@ def calibration_error(p: Tensor, freq: Tensor) -> float:
     if p.shape != freq.shape or p.ndim != 1 or p.numel() == 0:
         raise ValueError(f"p {tuple(p.shape)} and freq {tuple(freq.shape)} must be the same non-empty 1-D curve")
     return float((freq - p).abs().mean())
+
+
+def calibration_error_interval(
+    abs_errors: Sequence[Tensor],  # per shape: |error| [N_s]
+    sigmas: Sequence[Tensor],  # per shape: sigma [N_s]
+    n_levels: int = 20,
+    resamples: int = 200,
+    level: float = 0.9,
+    seed: int = 0,
+) -> tuple[float, float]:
+    """The central `level` interval of the calibration error over shapes drawn with replacement (a shape
+    bootstrap): how far the pooled error could move on another draw of as many test shapes. A shape's
+    predictions are correlated (one code error moves all its dimensions and SDF values), so the shape, not
+    the prediction, is the unit resampled."""
+    if not abs_errors or len(abs_errors) != len(sigmas):
+        raise ValueError("pass one |error| and one sigma tensor per shape (at least one shape)")
+    if not 0 < level < 1 or resamples < 1:
+        raise ValueError(f"level must be in (0, 1) and resamples >= 1, got {level!r}, {resamples!r}")
+    errors = [torch.as_tensor(e, dtype=torch.float64).reshape(-1) for e in abs_errors]
+    stds = [torch.as_tensor(s, dtype=torch.float64).reshape(-1) for s in sigmas]
+    generator = torch.Generator().manual_seed(seed)
+    scores = []
+    for _ in range(resamples):
+        drawn = torch.randint(len(errors), (len(errors),), generator=generator).tolist()
+        curve = calibration_curve(torch.cat([errors[i] for i in drawn]), torch.cat([stds[i] for i in drawn]), n_levels)
+        scores.append(calibration_error(*curve))
+    tail = (1 - level) / 2
+    low, high = torch.quantile(
+        torch.tensor(scores, dtype=torch.float64), torch.tensor([tail, 1 - tail], dtype=torch.float64)
+    )
+    return float(low), float(high)
 
 
 def plot_calibration(curves: Mapping[str, tuple[Tensor, Tensor]], title: str = "Calibration"):
