@@ -180,17 +180,10 @@ def reconstruct(
         sdf_t = sdf_temperature(fusion, predictor, refinement)
         if floors is not None:  # the refinement's fit with a floor where the views saw the surface, one where not
             seen_vertices = torch.as_tensor(seen_by_views(mesh, mesh.vertices, refined_views, floors["tolerance"]))
-            std = (
-                seen_floor_variance(
-                    std.double().square(),
-                    seen_vertices,
-                    floors["sdf_temperature"],
-                    floors["floor_seen"],
-                    floors["floor_unseen"],
-                )
-                .sqrt()
-                .float()
+            variance = seen_floor_variance(
+                std.double().square(), seen_vertices, sdf_t, floors["floor_seen"], floors["floor_unseen"]
             )
+            std = variance.sqrt().float()
             refinement["seen_vertices"] = float(seen_vertices.float().mean()) if len(seen_vertices) else None
         elif sdf_t is not None:  # the SDF-space recalibration (`fit_and_store_temperature`)
             std = apply_temperature(std.square(), sdf_t).sqrt()
@@ -235,7 +228,9 @@ def sdf_temperature(fusion: Fusion, predictor: Predictor, refinement: dict | Non
     where --fit-refinement fitted it (`refinement["calibration"]`); a fused code's, the fusion rule's own where
     it has one (`shared`, fitted on val on its fused variance); else the predictor's single-view one."""
     if refinement is not None:
-        calibration = refinement.get("calibration")
+        calibration, floors = refinement.get("calibration"), seen_floors(refinement)
+        if floors is not None:  # fitted with the seen / unseen floors, as the mesh's std is drawn
+            return floors["sdf_temperature"]
         return predictor.sdf_temperature if calibration is None else calibration["sdf_temperature"]
     own = getattr(fusion, "sdf_temperature", None)
     return predictor.sdf_temperature if own is None else own
@@ -250,8 +245,11 @@ def seen_floors(refinement: dict | None) -> dict | None:
 
 
 def sdf_floor(fusion: Fusion, refinement: dict | None = None) -> float | None:
-    """The std added to that SDF variance, T var + floor^2: the refinement's fitted floor, or the fusion rule's."""
+    """The std added to that SDF variance, T var + floor^2: the refinement's fitted floor, or the fusion rule's;
+    None where the refinement's seen / unseen floors differ per vertex (they are in the mesh's std)."""
     if refinement is not None:
+        if seen_floors(refinement) is not None:
+            return None
         return (refinement.get("calibration") or {}).get("sdf_floor") or None
     return getattr(fusion, "sdf_floor", None)
 

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+import trimesh
 
 from ushape import atomic
 from ushape.data.layout import WorldIndex, read_split
@@ -35,7 +36,7 @@ from ushape.data.sdf_dataset import sdf_points
 from ushape.decoder.artifacts import codes_file, load_codes
 from ushape.decoder.query import code_sdf_fn, frozen
 from ushape.encoder.datamodule import view_files
-from ushape.mesh.extraction import extract_mesh
+from ushape.mesh.extraction import EmptySurfaceError, extract_mesh
 from ushape.propagation import clamped_sdf_errors
 from ushape.recalibration.refine_information import (
     fit_information_scale,
@@ -124,10 +125,14 @@ def refined_val_shapes(
     return refined, fallbacks, shapes
 
 
-def refined_mesh(decoder, code: torch.Tensor):
-    """The mesh of a refined code, at which its points' visibility is decided."""
-    with frozen(decoder):
-        mesh, _ = extract_mesh(code_sdf_fn(decoder, code), MESH_RESOLUTION)
+def refined_mesh(decoder, code: torch.Tensor) -> trimesh.Trimesh:
+    """The mesh of a refined code, at which its points' visibility is decided (empty where it has no surface:
+    nothing then hides a point)."""
+    try:
+        with frozen(decoder):
+            mesh, _ = extract_mesh(code_sdf_fn(decoder, code), MESH_RESOLUTION)
+    except EmptySurfaceError:
+        return trimesh.Trimesh()
     return mesh
 
 
