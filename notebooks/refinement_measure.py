@@ -277,12 +277,16 @@ def summarise(path, misfit=None, stored=None):
     val, test = [r for r in rows if r["split"] == "val"], [r for r in rows if r["split"] == "test"]
     for mode in ("masks", "depth"):
         fit = [r for r in val if r[mode]["information"] is not None]
-        scale, before, after = fit_information_scale(
-            [torch.tensor(r[mode]["abs_error"]) for r in fit],
-            [torch.tensor(r[mode]["prior_precision"]) for r in fit],
-            [torch.tensor(r[mode]["information"]) for r in fit],
-        )
-        print(f"{mode}: information scale s = {scale:.4g} (val CE {before:.3f} at s = 1 -> {after:.3f})")
+        if fit:
+            scale, before, after = fit_information_scale(
+                [torch.tensor(r[mode]["abs_error"]) for r in fit],
+                [torch.tensor(r[mode]["prior_precision"]) for r in fit],
+                [torch.tensor(r[mode]["information"]) for r in fit],
+            )
+            print(f"{mode}: information scale s = {scale:.4g} (val CE {before:.3f} at s = 1 -> {after:.3f})")
+        else:  # measured with --val 0: nothing to fit s on
+            scale = 1.0
+            print(f"{mode}: no val rows, information scale s = 1")
         sdf_fit = {s: fit_sdf(fit, mode, s, misfit) for s in (1.0, scale)} if misfit else {}
         cli = stored.get(mode)
         if cli:
