@@ -6,7 +6,12 @@ import pytest
 import torch
 
 from ushape.fusion import BayesianFusion, BayesianKFusion, SharedErrorFusion
-from ushape.reconstruction.calibrated_fusion import calibrate_fusion, calibrated_counterpart, default_fusion
+from ushape.reconstruction.calibrated_fusion import (
+    calibrate_fusion,
+    calibrated_counterpart,
+    default_fusion,
+    refinement_prior,
+)
 from ushape.reconstruction.pipeline import sdf_floor, sdf_temperature
 
 
@@ -57,3 +62,18 @@ def test_the_meshes_std_takes_the_rules_sdf_temperature_unless_the_code_was_refi
     refined["calibration"] = {"sdf_temperature": 0.6, "sdf_floor": 0.004}  # unless fitted for the refinement
     assert sdf_temperature(shared, predictor, refined) == 0.6 and sdf_floor(shared, refined) == 0.004
     assert sdf_temperature(BayesianFusion(), predictor) == 1.5
+
+
+def test_the_refinement_prior_scales_the_views_itself_and_leaves_the_predictor_alone(tmp_path):
+    assert refinement_prior(_predictor(tmp_path, fitted=False)) is None  # no shared error: the caller's Bayes
+    plain = _predictor(tmp_path, fitted=True)
+    prior = refinement_prior(plain)
+    assert plain.temperature is None  # eval.py's predictor is shared by every protocol: not changed
+    scaled = default_fusion(_predictor(tmp_path, fitted=True))  # applies T = 2 to the predictor instead
+    mu, var = torch.randn(3, 2), torch.rand(3, 2) + 0.1
+    ours, theirs = prior(mu, var), scaled(mu, 2.0 * var)  # that predictor would have given 2 var
+    torch.testing.assert_close(ours.mu, theirs.mu)
+    torch.testing.assert_close(ours.var, theirs.var)
+    applied = _predictor(tmp_path, fitted=True)
+    applied.temperature = 2.0  # a predictor that already scales its variances: the rule as it is
+    torch.testing.assert_close(refinement_prior(applied)(mu, var).var, scaled(mu, var).var)

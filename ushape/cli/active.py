@@ -35,6 +35,7 @@ from ushape.planning.figures import sequence_figure, step_surfaces
 from ushape.planning.information import INFORMATION_STRATEGIES, SeenInformationGain
 from ushape.planning.observers import OBSERVERS, build_observer
 from ushape.planning.strategies import STRATEGIES
+from ushape.reconstruction.calibrated_fusion import refinement_prior
 from ushape.reconstruction.export import write_mesh_files
 from ushape.reconstruction.predictor import load_predictor
 from ushape.reconstruction.refine_calibration import seen_model
@@ -118,7 +119,10 @@ def run_active(args: argparse.Namespace) -> dict:
         options["floors"] = seen_model(predictor.checkpoint, args.observe)
     strategy = build_strategy(args.strategy, args.seed, **options)
     observer = build_observer(args.observe, size=args.refine_size, iterations=args.refine_iterations)
-    steps = active_reconstruction(candidates, encode, strategy, predictor.decoder, args.views, start, observe=observer)
+    fusion = None if args.observe == "none" else refinement_prior(predictor)  # refined: reconstruct.py's prior
+    steps = active_reconstruction(
+        candidates, encode, strategy, predictor.decoder, args.views, start, fusion=fusion, observe=observer
+    )
     out = Path(args.out) if args.out else DEFAULT_OUT / time.strftime("%Y-%m-%d_%H-%M-%S")
     surfaces = step_surfaces(steps, predictor.decoder, candidates, args.resolution)
     records = write_steps(steps, surfaces, predictor.decoder, world, candidates, encode, args.resolution, out)

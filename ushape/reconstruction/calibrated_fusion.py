@@ -13,6 +13,7 @@ from __future__ import annotations
 from typing import Any
 
 from ushape.fusion import BayesianFusion, BayesianKFusion, SharedErrorFusion
+from ushape.recalibration import apply_temperature
 from ushape.reconstruction.predictor import Predictor, read_shared_error, read_temperatures, temperature_path
 
 
@@ -52,3 +53,34 @@ def calibrated_counterpart(fusion: Any, predictor: Predictor) -> Any:
     if not isinstance(fusion, (BayesianFusion, BayesianKFusion)) or read_shared_error(predictor.checkpoint) is None:
         return fusion
     return calibrate_fusion(SharedErrorFusion(k=getattr(fusion, "k", None), var_floor=fusion.var_floor), predictor)
+
+
+class TemperatureScaled:
+    """A fusion rule applied to view variances scaled by a latent temperature first: for views encoded
+    without it by a predictor that is not to be changed (eval.py's, shared by every protocol)."""
+
+    def __init__(self, rule: Any, temperature: float) -> None:
+        self.rule, self.temperature = rule, float(temperature)
+        self.name = getattr(rule, "name", type(rule).__name__)
+
+    def __call__(self, mu, var):
+        return self.rule(mu, apply_temperature(var, self.temperature))
+
+
+def refinement_prior(predictor: Predictor) -> Any | None:
+    """The run's calibrated `shared` rule for the views as this predictor encodes them, without changing the
+    predictor (where it does not apply its stored temperature, the rule scales the variances by it, as S was
+    fitted on them); None where the run has no shared error fitted. The prior reconstruct.py refines."""
+    fit = read_shared_error(predictor.checkpoint)
+    if fit is None:
+        return None
+    rule = SharedErrorFusion().calibrated(
+        fit.shared_var,
+        fit.view_scale,
+        source=str(temperature_path(predictor.checkpoint)),
+        sdf_temperature=fit.sdf_temperature,
+        sdf_floor=fit.sdf_floor,
+    )
+    if predictor.temperature is not None:
+        return rule
+    return TemperatureScaled(rule, read_temperatures(predictor.checkpoint)[0])
