@@ -31,7 +31,12 @@ def calibrate_fusion(fusion: Any, predictor: Predictor) -> Any:
         )
     if predictor.temperature is None:
         predictor.temperature, predictor.sdf_temperature = read_temperatures(predictor.checkpoint)
-    source = str(temperature_path(predictor.checkpoint))
+    return with_fit(fusion, fit, predictor.checkpoint)
+
+
+def with_fit(fusion: SharedErrorFusion, fit, checkpoint) -> SharedErrorFusion:
+    """The shared rule carrying a run's fitted shared error and its SDF calibration (`read_shared_error`)."""
+    source = str(temperature_path(checkpoint))
     return fusion.calibrated(
         fit.shared_var, fit.view_scale, source=source, sdf_temperature=fit.sdf_temperature, sdf_floor=fit.sdf_floor
     )
@@ -74,13 +79,7 @@ def refinement_prior(predictor: Predictor) -> Any | None:
     fit = read_shared_error(predictor.checkpoint)
     if fit is None:
         return None
-    rule = SharedErrorFusion().calibrated(
-        fit.shared_var,
-        fit.view_scale,
-        source=str(temperature_path(predictor.checkpoint)),
-        sdf_temperature=fit.sdf_temperature,
-        sdf_floor=fit.sdf_floor,
-    )
+    rule = with_fit(SharedErrorFusion(), fit, predictor.checkpoint)
     if predictor.temperature is not None:
         return rule
     return TemperatureScaled(rule, read_temperatures(predictor.checkpoint)[0])
