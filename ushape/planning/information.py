@@ -24,6 +24,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ushape.planning.criteria import unseen_uncertain_surface
 from ushape.propagation.linearised import latent_jacobian
 from ushape.propagation.sphere_tracing import sphere_trace
 from ushape.refinement.observation import ObservationSettings, code_functions, residuals, view_rays
@@ -203,8 +204,8 @@ def seen_floor_drop(
     """sum_v area_v (floor_unseen^2 - floor_seen^2) over the vertices candidate c would see that no view taken
     sees: the SDF variance the floors of the refined posterior would lose there (`refine_calibration`'s seen
     model: the error the decoder's code cannot carry, pinned where a view saw the surface)."""
-    newly = np.asarray(visible, bool) & ~np.asarray(seen, bool)[None]
-    return (floor_unseen**2 - floor_seen**2) * (newly * np.asarray(area, np.float64)[None]).sum(axis=1)
+    gap = np.full(len(area), floor_unseen**2 - floor_seen**2)  # the variance a first sight takes off each vertex
+    return unseen_uncertain_surface(np.asarray(visible, bool), gap, area, seen)
 
 
 class SeenInformationGain(SurfaceInformationGain):
