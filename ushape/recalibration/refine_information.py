@@ -132,12 +132,17 @@ def fit_sdf_recalibration_seen(
             for k in [seen if seen_part else ~seen]
         ]
 
-    def worst(t: float, fs: float, fu: float) -> float:
-        return max(x for part in (True, False) for x in parts(t, fs, fu, part) if x is not None)
-
+    # The seen points' worst error depends on (T, floor_seen) only, the unseen ones' on (T, floor_unseen) only:
+    # each is scored once per pair, not once per (T, floor_seen, floor_unseen).
+    worst = {
+        (part, t, f): max((x for x in parts(t, f, f, part) if x is not None), default=0.0)
+        for part in (True, False)
+        for t in grid
+        for f in floors
+    }
     best = min(
         ((t, fs, fu) for fs in floors for fu in floors if fs <= fu for t in grid),
-        key=lambda c: (worst(*c), c[2], c[1], abs(math.log(c[0]))),
+        key=lambda c: (max(worst[True, c[0], c[1]], worst[False, c[0], c[2]]), c[2], c[1], abs(math.log(c[0]))),
     )
     t, fs, fu = best
     return {
