@@ -26,19 +26,16 @@ from PIL import Image
 from ushape import atomic
 from ushape.data.world import open_world
 from ushape.decoder.latent_gaussian import latent_trace
-from ushape.evaluation.active import start_view
+from ushape.evaluation.active import loop_fusion, start_view, strategy_options
 from ushape.evaluation.code_metrics import Reconstructor
 from ushape.evaluation.plots import save_figure
 from ushape.planning import ViewEncoder, active_reconstruction, build_strategy, candidate_views
 from ushape.planning.candidates import SOURCES
 from ushape.planning.figures import sequence_figure, step_surfaces
-from ushape.planning.information import INFORMATION_STRATEGIES, SeenInformationGain
 from ushape.planning.observers import OBSERVERS, build_observer
 from ushape.planning.strategies import STRATEGIES
-from ushape.reconstruction.calibrated_fusion import refinement_prior
 from ushape.reconstruction.export import write_mesh_files
 from ushape.reconstruction.predictor import load_predictor
-from ushape.reconstruction.refine_calibration import seen_model
 
 DEFAULT_OUT = Path("outputs") / "active"
 
@@ -114,12 +111,10 @@ def run_active(args: argparse.Namespace) -> dict:
         raise ValueError(
             f"--refine-size and --refine-iterations must be >= 1, got {args.refine_size}, {args.refine_iterations}"
         )
-    options = {"size": args.refine_size} if args.strategy in INFORMATION_STRATEGIES else {}
-    if args.strategy == SeenInformationGain.name:
-        options["floors"] = seen_model(predictor.checkpoint, args.observe)
-    strategy = build_strategy(args.strategy, args.seed, **options)
     observer = build_observer(args.observe, size=args.refine_size, iterations=args.refine_iterations)
-    fusion = None if args.observe == "none" else refinement_prior(predictor)  # refined: reconstruct.py's prior
+    options = strategy_options(args.strategy, args.refine_size, predictor, observer)
+    strategy = build_strategy(args.strategy, args.seed, **options)
+    fusion = loop_fusion(predictor, observer)  # refined: the prior reconstruct.py refines, as Table A
     steps = active_reconstruction(
         candidates, encode, strategy, predictor.decoder, args.views, start, fusion=fusion, observe=observer
     )

@@ -81,9 +81,8 @@ def observer_for(settings, name: str):
 
 def sequence(run, settings, candidates, encode, name: str, observer, true_code):
     """One strategy's steps on one shape (from the shared start view), under one observer."""
-    strategy = build_strategy(
-        name, settings.seed, true_code if name == "oracle" else None, **strategy_options(settings, name, run, observer)
-    )
+    options = strategy_options(name, settings.active_refine_size, run.predictor, observer)
+    strategy = build_strategy(name, settings.seed, true_code if name == "oracle" else None, **options)
     return active_reconstruction(
         candidates,
         encode,
@@ -91,30 +90,30 @@ def sequence(run, settings, candidates, encode, name: str, observer, true_code):
         run.predictor.decoder,
         settings.active_views,
         start_view(settings.seed, candidates.shape_id, len(candidates)),
-        fusion=loop_fusion(run, observer),
+        fusion=loop_fusion(run.predictor, observer),
         resolution=settings.resolution,
         observe=observer,
     )
 
 
-def loop_fusion(run, observer):
+def loop_fusion(predictor, observer):
     """The rule that fuses the views taken: Bayesian (the paper's) for the fused belief; for a refining
     observer, the prior reconstruct.py refines, the run's calibrated `shared` rule where fitted (Bayesian's
     variance shrinks as 1/V while the views' shared error stays, so a refinement from it is held near the
     fused mean: measured, the refined IoU fell when a view was added in 40-60 % of the steps)."""
     if getattr(observer, "name", FusedGaussian.name) == FusedGaussian.name:
         return None
-    return refinement_prior(run.predictor)
+    return refinement_prior(predictor)
 
 
-def strategy_options(settings, name: str, run=None, observer=None) -> dict:
-    """The information strategies' rays per side; information-seen's floors, the run's seen model fitted for what
-    the loop observes (masks where it observes nothing)."""
+def strategy_options(name: str, size: int, predictor=None, observer=None) -> dict:
+    """The information strategies' rays per side (`size`); information-seen's floors, the predictor's run's seen
+    model fitted for what the loop observes (masks where it observes nothing)."""
     if name not in INFORMATION_STRATEGIES:
         return {}
-    options = {"size": settings.active_refine_size}
+    options = {"size": size}
     if name == SeenInformationGain.name:
-        options["floors"] = seen_model(run.predictor.checkpoint, getattr(observer, "name", "none"))
+        options["floors"] = seen_model(predictor.checkpoint, getattr(observer, "name", FusedGaussian.name))
     return options
 
 
