@@ -125,9 +125,10 @@ def fit_sdf_recalibration_seen(
     def ce(abs_error: Tensor, var: Tensor) -> float:
         return calibration_error(*calibration_curve(abs_error, var.sqrt(), n_levels))
 
-    def parts(t: float, fs: float, fu: float, seen_part: bool) -> list[float | None]:
+    def parts(t: float, floor: float, seen_part: bool) -> list[float | None]:
+        """Per group, the CE of its seen (or unseen) points with that class's floor (None: no such point)."""
         return [
-            ce(e[k], t * v[k] + (fs if seen_part else fu) ** 2) if k.any() else None
+            ce(e[k], t * v[k] + floor**2) if k.any() else None
             for e, v, seen in checked
             for k in [seen if seen_part else ~seen]
         ]
@@ -135,7 +136,7 @@ def fit_sdf_recalibration_seen(
     # The seen points' worst error depends on (T, floor_seen) only, the unseen ones' on (T, floor_unseen) only:
     # each is scored once per pair, not once per (T, floor_seen, floor_unseen).
     worst = {
-        (part, t, f): max((x for x in parts(t, f, f, part) if x is not None), default=0.0)
+        (part, t, f): max((x for x in parts(t, f, part) if x is not None), default=0.0)
         for part in (True, False)
         for t in grid
         for f in floors
@@ -151,6 +152,6 @@ def fit_sdf_recalibration_seen(
         "floor_unseen": fu,
         "before": [ce(e, v) for e, v, _ in checked],
         "after": [ce(e, seen_floor_variance(v, s, t, fs, fu)) for e, v, s in checked],
-        "after_seen": parts(t, fs, fu, True),
-        "after_unseen": parts(t, fs, fu, False),
+        "after_seen": parts(t, fs, True),
+        "after_unseen": parts(t, fu, False),
     }
