@@ -382,7 +382,7 @@ def main():
     parser.add_argument("out")
     parser.add_argument("--val", type=int, default=5)
     parser.add_argument("--test", type=int, default=6)
-    parser.add_argument("--size", type=int, default=24)
+    parser.add_argument("--size", type=int, default=ObservationSettings.size, help="rays per image side (eval.py: 32)")
     parser.add_argument("--tolerance", type=float, default=RefineSettings.tolerance, help="LM stops below this gain")
     parser.add_argument("--grid", type=int, default=ObservationSettings.grid, help="SDF grid nodes (0: decoder)")
     parser.add_argument("--world", help="the world folder, where the run's summary does not name it yet")
