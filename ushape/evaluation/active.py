@@ -106,7 +106,7 @@ def loop_fusion(predictor, observer):
     return refinement_prior(predictor)
 
 
-def strategy_options(name: str, size: int, predictor=None, observer=None) -> dict:
+def strategy_options(name: str, size: int, predictor, observer) -> dict:
     """The information strategies' rays per side (`size`); information-seen's floors, the predictor's run's seen
     model fitted for what the loop observes (masks where it observes nothing)."""
     if name not in INFORMATION_STRATEGIES:
