@@ -18,6 +18,7 @@ from ushape.data.augment import (
     view_seed,
 )
 from ushape.evaluation import protocols as P
+from ushape.evaluation import tables
 from ushape.evaluation.runner import evaluate_all, evaluate_encoder
 from ushape.evaluation.views import ViewKey, encode_views
 
@@ -193,3 +194,28 @@ def test_view_calibration_protocol_scores_every_rule_and_writes_table_v(sphere_w
     assert all(0 <= r["latent_calibration_error"] <= 0.5 and 0 <= r["sdf_coverage90"] <= 1 for r in rows)
     assert any(t.name.startswith("Table V") for t in build_tables(result))
     assert "calibration_across_views" in build_figures(result)
+
+
+def test_table3_fuses_by_the_calibrated_shared_rule_once_it_is_fitted(sphere_world, sphere_codes, tmp_path):
+    import json
+
+    from ushape.evaluation.view_calibration import calibrated_rule
+
+    settings = tiny_settings(protocols=("multi_view",))
+    run = make_run(sphere_world, sphere_codes, None, "es", tmp_path, settings)
+    assert calibrated_rule(run) == {}  # nothing fitted: the paper's rules only
+    assert "shared" not in {r["method"] for r in evaluate_encoder(run, settings, None)["records"]}
+    shared = {"var": [0.1] * LATENT, "view_scale": 0.5, "n_shapes": 3}
+    (tmp_path / "temperature.json").write_text(json.dumps({"temperature": 2.0, "shared_error": shared}))
+    # Fitted on variances scaled by T = 2: S + c (sum_v (T var_v)^-1)^-1 = 0.1 + 0.5 * 2 * 1 / 2.
+    fused = calibrated_rule(run)["shared"](torch.zeros(2, LATENT), torch.ones(2, LATENT))
+    assert torch.allclose(fused.var, torch.full((LATENT,), 0.6))
+    run.predictor.temperature = 2.0  # applied by the predictor already: not again
+    assert torch.allclose(
+        calibrated_rule(run)["shared"](torch.zeros(2, LATENT), torch.ones(2, LATENT)).var, torch.full((LATENT,), 0.35)
+    )
+    summary = P.summarise(evaluate_encoder(run, settings, None)["records"])
+    cells = {r["method"]: r for r in summary}
+    assert cells["shared"]["n"] == cells["bayesian"]["n"] == 4
+    assert cells["shared"]["iou"] == cells["bayesian"]["iou"]  # Bayesian's mean: only a refinement tells them apart
+    assert [row[2] for row in tables.table3(summary, 4).rows][-1] == "Shared (calibrated Bayesian)"

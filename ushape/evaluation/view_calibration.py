@@ -198,6 +198,25 @@ def evaluation_rules(checkpoint, k: int) -> tuple[dict[str, FusionRule], float |
     return rules, *read_temperatures(checkpoint)
 
 
+def calibrated_rule(run) -> dict[str, FusionRule]:
+    """{"shared": the run's calibrated rule} where `--fit-temperature` stored its shared error, else {}.
+
+    The shared error was fitted on temperature-scaled view variances, so the rule scales them by the stored
+    latent T where the evaluation did not apply it already. Its mean is Bayesian's, so its plain rows repeat
+    Bayesian's IoU; a refinement takes its (wider) variance as the prior, as `reconstruct.py --refine` does.
+    """
+    from ushape.fusion import SharedErrorFusion
+    from ushape.reconstruction.predictor import read_shared_error, read_temperatures
+
+    checkpoint = run.predictor.checkpoint
+    fit = read_shared_error(checkpoint)
+    if fit is None or not run.spec.probabilistic:
+        return {}
+    latent_t = read_temperatures(checkpoint)[0] if run.predictor.temperature is None else 1.0
+    rule = SharedErrorFusion(fit.shared_var, fit.view_scale, sdf_temperature=fit.sdf_temperature)
+    return {"shared": lambda mu, var: rule(mu, var * latent_t)}
+
+
 def view_calibration_protocol(run, settings, encodings, codes, draws: int = 6, after=None) -> list[dict]:
     """Table V's rows for one evaluated run: every rule at 1, 3 and 10 fused test views, latent and SDF.
 
