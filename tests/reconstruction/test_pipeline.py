@@ -302,6 +302,9 @@ def test_fit_refinement_stores_a_calibration_that_the_refinement_then_applies(ti
         with pytest.raises(ValueError, match="--fit-refinement depth"):
             RefineMethod("depth", calibrated=True).settings_for(run)
         assert RefineMethod("depth").settings_for(run).information_scale == 1.0  # not calibrated: its own knobs
+        with pytest.raises(ValueError, match="at least 1 val shape"):
+            fit_and_store_refinement_calibration(sphere_predictor, "masks", n_shapes=0)
+        assert read_refinement_calibration(checkpoint, "masks") == record  # the stored fit is kept
     finally:
         calibration_path(checkpoint).unlink(missing_ok=True)
         for shape_id in ("val_0", "val_1", "val_2"):

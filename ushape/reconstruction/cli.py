@@ -6,6 +6,7 @@
         [--refine masks|depth [--cameras CAMERAS.npz] [--masks MASK ...]] ...
     python reconstruct.py --fit-temperature [--run RUN | --checkpoint CKPT]
     python reconstruct.py --fit-refinement masks|depth [--run RUN | --checkpoint CKPT] [--refine-size 24]
+        [--fit-shapes 20]
 
 Without --run/--checkpoint the newest encoder run under ./outputs/runs is used. The fusion rule is
 built from the `fusion` config group (conf/fusion/<name>.yaml), with --k overriding its k. Without
@@ -34,7 +35,7 @@ from ushape.propagation.mesh import METHODS
 from ushape.reconstruction.calibrated_fusion import calibrate_fusion, default_fusion
 from ushape.reconstruction.pipeline import ReconstructionSettings, reconstruct
 from ushape.reconstruction.predictor import collect_inputs, load_predictor
-from ushape.reconstruction.refine_calibration import fit_and_store_refinement_calibration
+from ushape.reconstruction.refine_calibration import FIT_SHAPES, fit_and_store_refinement_calibration
 from ushape.reconstruction.temperature_store import fit_and_store_temperature
 from ushape.refinement import MODES as REFINE_MODES
 from ushape.refinement.inputs import input_views
@@ -80,6 +81,12 @@ def build_parser() -> argparse.ArgumentParser:
         choices=REFINE_MODES,
         help="fit the refined posterior's calibration for this mode on val shapes (after --fit-temperature: the "
         "prior is the calibrated fusion) and store refinement_calibration.json; --refine then applies it",
+    )
+    parser.add_argument(
+        "--fit-shapes",
+        type=int,
+        default=FIT_SHAPES,
+        help="with --fit-refinement: how many val shapes to refine and fit on (the first ones; all where fewer)",
     )
     parser.add_argument("--temperature", action="store_true", help="apply the stored temperature")
     parser.add_argument(
@@ -144,7 +151,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 0
         if args.fit_refinement:
             predictor = load_predictor(source, temperature=True, root=args.root)
-            record = fit_and_store_refinement_calibration(predictor, args.fit_refinement, size=args.refine_size)
+            record = fit_and_store_refinement_calibration(
+                predictor, args.fit_refinement, size=args.refine_size, n_shapes=args.fit_shapes
+            )
             print(json.dumps(record, indent=2))
             return 0
         files = collect_inputs(args.inputs)
