@@ -179,6 +179,7 @@ def evaluation_rules(checkpoint, k: int) -> tuple[dict[str, FusionRule], float |
         CovarianceIntersectionFusion,
         SharedErrorFusion,
     )
+    from ushape.reconstruction.calibrated_fusion import with_fit
     from ushape.reconstruction.predictor import read_shared_error, read_temperatures, temperature_path
 
     rules = {"average": AverageFusion(), "bayesian": BayesianFusion(), f"bayesian-{k}": BayesianKFusion(k)}
@@ -192,9 +193,8 @@ def evaluation_rules(checkpoint, k: int) -> tuple[dict[str, FusionRule], float |
             checkpoint,
         )
         return rules, None, None
-    sdf = {"sdf_temperature": fit.sdf_temperature, "sdf_floor": fit.sdf_floor}
-    rules["shared"] = SharedErrorFusion(fit.shared_var, fit.view_scale, **sdf)
-    rules[f"shared-{k}"] = SharedErrorFusion(fit.shared_var, fit.view_scale, k=k, **sdf)
+    rules["shared"] = with_fit(SharedErrorFusion(), fit, checkpoint)
+    rules[f"shared-{k}"] = with_fit(SharedErrorFusion(k=k), fit, checkpoint)
     return rules, *read_temperatures(checkpoint)
 
 
@@ -205,16 +205,10 @@ def calibrated_rule(run) -> dict[str, FusionRule]:
     latent T where the evaluation did not apply it already. Its mean is Bayesian's, so its plain rows repeat
     Bayesian's IoU; a refinement takes its (wider) variance as the prior, as `reconstruct.py --refine` does.
     """
-    from ushape.fusion import SharedErrorFusion
-    from ushape.reconstruction.predictor import read_shared_error, read_temperatures
+    from ushape.reconstruction.calibrated_fusion import refinement_prior
 
-    checkpoint = run.predictor.checkpoint
-    fit = read_shared_error(checkpoint)
-    if fit is None or not run.spec.probabilistic:
-        return {}
-    latent_t = read_temperatures(checkpoint)[0] if run.predictor.temperature is None else 1.0
-    rule = SharedErrorFusion(fit.shared_var, fit.view_scale, sdf_temperature=fit.sdf_temperature)
-    return {"shared": lambda mu, var: rule(mu, var * latent_t)}
+    rule = refinement_prior(run.predictor) if run.spec.probabilistic else None
+    return {} if rule is None else {"shared": rule}
 
 
 def view_calibration_protocol(run, settings, encodings, codes, draws: int = 6, after=None) -> list[dict]:
