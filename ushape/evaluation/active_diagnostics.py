@@ -11,6 +11,10 @@ Per decision of a strategy that scores the current mesh's uncertainty, or the ex
 - std shrink seen / unseen: on the mesh the choice was made on, the SDF std after fusing the chosen view
   over the std before, median over the vertices that view sees divided by the median over those it does
   not. Below 1: seeing a part makes it surer than the rest (a local uncertainty); 1: every part shrinks alike.
+
+How high can the first correlation be? `ideal_rank_correlation` measures it where the information scores'
+own model holds exactly (linear observations, Gaussian code and noise): a single realised drop scatters about
+its expectation, so even the expected drop itself does not rank the realised ones perfectly.
 """
 
 from __future__ import annotations
@@ -61,6 +65,47 @@ class RealisedDrops:
                 mu = self.observer.updated_mean(self.decoder, belief, self.encode.observed(c))
                 distances[c] = float((mu - self.true_code).norm())
         return np.where(np.isfinite(distances), start - distances, np.nan)
+
+
+def simulated_drops(
+    cov: torch.Tensor,  # [D, D] the belief's covariance Sigma
+    informations: torch.Tensor,  # [C, D, D] each candidate's J_c^T W J_c
+    error: torch.Tensor,  # [D] the belief's error mu - z
+    generator: torch.Generator,
+) -> torch.Tensor:  # [C]
+    """|e|^2 - |e'_c|^2 per candidate, one draw of each candidate's observation noise, in the linear-Gaussian model
+    the information scores assume: e'_c = Sigma'_c (Sigma^-1 e + eta_c), eta_c = J_c^T W n_c ~ N(0, A_c),
+    Sigma'_c = (Sigma^-1 + A_c)^-1. With e ~ N(0, Sigma) its mean is tr(Sigma - Sigma'_c)."""
+    cov = 0.5 * (cov.double() + cov.double().T)
+    A = 0.5 * (informations.double() + informations.double().transpose(1, 2))
+    precision = torch.linalg.inv(cov)
+    values, vectors = torch.linalg.eigh(A)
+    noise = torch.randn(A.shape[:2], generator=generator, dtype=torch.float64)
+    eta = (vectors @ (values.clamp(min=0).sqrt() * noise)[..., None])[..., 0]
+    posterior = torch.linalg.inv(precision + A)
+    after = (posterior @ (precision @ error.double() + eta)[..., None])[..., 0]
+    return error.double().pow(2).sum() - after.pow(2).sum(dim=1)
+
+
+def ideal_rank_correlation(
+    cov: torch.Tensor,  # [D, D]
+    informations: torch.Tensor,  # [C, D, D]
+    scores: torch.Tensor,  # [C] a strategy's scores of the candidates
+    draws: int = 200,
+    seed: int = 0,
+) -> float:
+    """Mean Spearman correlation of the scores with the drops `simulated_drops` gives for a true code drawn from
+    the belief (e ~ N(0, Sigma)): the score-vs-latent-drop correlation the scores would reach if the belief and
+    the linearised observations were exact."""
+    generator = torch.Generator().manual_seed(seed)
+    L = torch.linalg.cholesky(0.5 * (cov.double() + cov.double().T))
+    values = []
+    for _ in range(draws):
+        error = L @ torch.randn(L.shape[0], generator=generator, dtype=torch.float64)
+        drops = simulated_drops(cov, informations, error, generator)
+        values.append(float(spearman_correlation(scores.double(), drops)))
+    finite = [v for v in values if math.isfinite(v)]
+    return float(np.mean(finite)) if finite else math.nan
 
 
 def decision_diagnostics(steps: Sequence[Step], drops: RealisedDrops, decoder, scored: bool = False) -> list[dict]:
