@@ -12,6 +12,7 @@ import logging
 import os
 import shutil
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -291,3 +292,14 @@ def test_a_methods_own_sdf_calibration_scales_its_sdf_variance_in_tables_v_and_s
     }
     for method in ("linearised",):
         assert sdf[("es+halved_t", method)] == pytest.approx(sdf[("es", method)], abs=1e-6)
+
+
+def test_starts_reach_the_settings_from_the_method_config_and_bad_counts_are_refused():
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+
+    config = OmegaConf.load(Path(__file__).parents[2] / "conf" / "method" / "refine_depth.yaml")
+    assert instantiate(config).settings.starts == 0  # from the fused mean, as measured by default
+    assert instantiate(config, starts=8).settings.starts == 8
+    with pytest.raises(ValueError, match="starts"):
+        R.RefineMethod("depth", starts=-1)

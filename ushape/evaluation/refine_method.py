@@ -87,7 +87,8 @@ class RefineMethod(ReconstructionMethod):
     sdf_floor, the posterior's SDF variance T_sdf var + floor^2 (fitted on val with
     `refine_information.fit_sdf_recalibration`; None: the run's single-view T_sdf). calibrated: s, T_sdf and
     the floor from each run's own fit instead (`reconstruct.py --fit-refinement MODE`, refinement_calibration.json
-    beside its checkpoint)."""
+    beside its checkpoint). starts: prior draws scored beside the fused mean, the LM starting from the lowest
+    energy (0: from the mean; docs/refinement.md, "Starts")."""
 
     def __init__(
         self,
@@ -102,8 +103,9 @@ class RefineMethod(ReconstructionMethod):
         calibrated: bool = False,
         name: str | None = None,
         label: str | None = None,
+        starts: int = 0,
     ) -> None:
-        self.settings = refine_settings(mode, size, sigma_mask, sigma_depth, iterations, information_scale)
+        self.settings = refine_settings(mode, size, sigma_mask, sigma_depth, iterations, information_scale, starts)
         self.calibrated = bool(calibrated)
         temperature = check_optional_number(sdf_temperature, "sdf_temperature")
         floor = check_optional_number(sdf_floor, "sdf_floor", zero_ok=True)

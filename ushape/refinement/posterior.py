@@ -71,14 +71,19 @@ def refine_settings(
     sigma_depth: float = 0.02,
     iterations: int = 15,
     information_scale: float = 1.0,
+    starts: int = 0,
 ) -> RefineSettings:
-    """RefineSettings from the flat knobs a config or a command line gives (size: rays per image side)."""
+    """RefineSettings from the flat knobs a config or a command line gives (size: rays per image side; starts:
+    prior draws scored beside the prior's mean, the LM starting from the lowest energy)."""
+    if int(starts) != starts or starts < 0:
+        raise ValueError(f"starts (prior draws scored beside the prior's mean) must be an integer >= 0, got {starts!r}")
     return RefineSettings(
         mode=mode,
         sigma_mask=sigma_mask,
         sigma_depth=sigma_depth,
         iterations=iterations,
         information_scale=information_scale,
+        starts=int(starts),
         observation=ObservationSettings(size=size),
     )
 
