@@ -227,10 +227,11 @@ def test_reconstruct_takes_a_full_covariance(tiny_run, sphere_predictor, tmp_pat
 
 def test_refine_masks_on_renders_records_the_refinement_and_meshes_the_posterior(tiny_run, sphere_predictor, tmp_path):
     views = sorted((tiny_run["world"] / "renders" / "test_0").glob("*.png"))[:2]
-    settings = dataclasses.replace(SMALL, refine="masks", refine_size=12)
+    settings = dataclasses.replace(SMALL, refine="masks", refine_size=12, refine_starts=2)
     summary = reconstruct(sphere_predictor, views, BayesianKFusion(k=2), tmp_path / "out", settings)
     record = summary["refinement"]
     assert record["mode"] == "masks" and record["views_with_camera"] == 2 and record["fallback"] is None
+    assert record["starts"] == 2  # prior draws scored beside the fused mean, as asked
     assert record["iterations"] >= 1 and record["rows"]["masks"] == 2 * 12 * 12
     assert record["energy_end"] <= record["energy_start"]
     assert np.isfinite(np.asarray(summary["mesh"]["std_mean"]))
@@ -247,6 +248,14 @@ def test_refine_without_cameras_says_so_and_keeps_the_fused_code(tiny_run, spher
     with pytest.raises(ValueError, match="refine must be one of"):
         reconstruct(
             sphere_predictor, [photo], BayesianKFusion(k=2), tmp_path / "o2", dataclasses.replace(SMALL, refine="x")
+        )
+    with pytest.raises(ValueError, match="--refine-starts"):
+        reconstruct(
+            sphere_predictor,
+            [photo],
+            BayesianKFusion(k=2),
+            tmp_path / "o3",
+            dataclasses.replace(SMALL, refine="masks", refine_starts=-1),
         )
 
 

@@ -73,6 +73,7 @@ class ReconstructionSettings:
     seed: int = 0
     refine: str | None = None  # "masks" | "depth": refine the fused code on the views (ushape.refinement)
     refine_size: int = 32  # rays per image side the refinement compares
+    refine_starts: int = 0  # prior draws scored beside the fused mean; the LM starts from the lowest energy
     # The decoder's: fp32, bf16, or auto (bf16 where faster: AMX CPUs, CUDA >= 8.0). Under bf16 the mesh
     # is searched in bf16 and placed by fp32 values; linearised and implicit stds use bf16 passes;
     # Monte Carlo stds stay fp32.
@@ -135,6 +136,8 @@ def reconstruct(
     """
     if settings.refine is not None and settings.refine not in REFINE_MODES:
         raise ValueError(f"refine must be one of {REFINE_MODES} or None, got {settings.refine!r}")
+    if settings.refine_starts < 0:
+        raise ValueError(f"refine_starts (--refine-starts) must be >= 0, got {settings.refine_starts}")
     if settings.uncertainty not in METHODS:
         raise ValueError(f"uncertainty must be one of {METHODS}, got {settings.uncertainty!r}")
     if settings.depth_method not in DEPTH_METHODS:
@@ -284,9 +287,12 @@ def refined(
             settings.refine_size,
         )
     observation = ObservationSettings(size=settings.refine_size)
-    options = RefineSettings(mode=settings.refine, observation=observation, information_scale=scale)
+    options = RefineSettings(
+        mode=settings.refine, observation=observation, information_scale=scale, starts=settings.refine_starts
+    )
     posterior = refine(decoder, fused.mu, fused.var, views, options)
-    record = {"mode": settings.refine, "views_with_camera": sum(v is not None for v in views), **posterior.record()}
+    record = {"mode": settings.refine, "starts": settings.refine_starts, **posterior.record()}
+    record["views_with_camera"] = sum(v is not None for v in views)
     record["calibration"] = None if calibration is None else {k: calibration.get(k) for k in APPLIED}
     record["mu"] = posterior.mu.tolist()
     views = [v for v in views if v is not None]
