@@ -29,7 +29,7 @@ from ushape.encoder.latent_metrics import spearman_correlation
 from ushape.evaluation.active import start_view
 from ushape.evaluation.active_diagnostics import RealisedDrops, ideal_rank_correlation
 from ushape.planning import ViewEncoder, active_reconstruction, build_strategy, candidate_views
-from ushape.planning.information import candidate_information, information_gain
+from ushape.planning.information import candidate_information, information_gain, surface_variance_drop
 from ushape.planning.observers import build_observer
 from ushape.reconstruction.calibrated_fusion import refinement_prior
 from ushape.reconstruction.predictor import load_predictor
@@ -54,10 +54,10 @@ def decision_row(predictor, candidates, steps, k, settings, drops) -> dict:
             for c in open_views
         ]
     )
-    precision = torch.linalg.inv(cov)
+    identity = torch.eye(cov.shape[0], dtype=torch.float64)  # tr(I (Sigma - Sigma')): the expected latent drop
     scores = {
         "logdet": torch.tensor([information_gain(cov, a) for a in A], dtype=torch.float64),
-        "trace": torch.stack([torch.trace(cov - torch.linalg.inv(precision + a)) for a in A]),
+        "trace": torch.tensor([surface_variance_drop(cov, a, identity) for a in A], dtype=torch.float64),
     }
     realised = torch.as_tensor(drops(steps, k)[open_views], dtype=torch.float64)
     row = {"views": k, "open": len(open_views), "trace": float(torch.trace(cov))}

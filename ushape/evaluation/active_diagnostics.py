@@ -67,22 +67,32 @@ class RealisedDrops:
         return np.where(np.isfinite(distances), start - distances, np.nan)
 
 
+def linear_updates(
+    cov: torch.Tensor,  # [D, D] the belief's covariance Sigma
+    informations: torch.Tensor,  # [C, D, D] each candidate's J_c^T W J_c
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(Sigma^-1 [D, D], A_c^(1/2) [C, D, D], Sigma'_c = (Sigma^-1 + A_c)^-1 [C, D, D]): what `simulated_drops` needs of
+    a decision, the same for every draw of the truth and the noise."""
+    cov = 0.5 * (cov.double() + cov.double().T)
+    A = 0.5 * (informations.double() + informations.double().transpose(1, 2))
+    precision = torch.linalg.inv(cov)
+    values, vectors = torch.linalg.eigh(A)
+    return precision, vectors * values.clamp(min=0).sqrt()[:, None, :], torch.linalg.inv(precision + A)
+
+
 def simulated_drops(
     cov: torch.Tensor,  # [D, D] the belief's covariance Sigma
     informations: torch.Tensor,  # [C, D, D] each candidate's J_c^T W J_c
     error: torch.Tensor,  # [D] the belief's error mu - z
     generator: torch.Generator,
+    updates: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None,  # linear_updates(cov, informations)
 ) -> torch.Tensor:  # [C]
     """|e|^2 - |e'_c|^2 per candidate, one draw of each candidate's observation noise, in the linear-Gaussian model
     the information scores assume: e'_c = Sigma'_c (Sigma^-1 e + eta_c), eta_c = J_c^T W n_c ~ N(0, A_c),
     Sigma'_c = (Sigma^-1 + A_c)^-1. With e ~ N(0, Sigma) its mean is tr(Sigma - Sigma'_c)."""
-    cov = 0.5 * (cov.double() + cov.double().T)
-    A = 0.5 * (informations.double() + informations.double().transpose(1, 2))
-    precision = torch.linalg.inv(cov)
-    values, vectors = torch.linalg.eigh(A)
-    noise = torch.randn(A.shape[:2], generator=generator, dtype=torch.float64)
-    eta = (vectors @ (values.clamp(min=0).sqrt() * noise)[..., None])[..., 0]
-    posterior = torch.linalg.inv(precision + A)
+    precision, root, posterior = updates if updates is not None else linear_updates(cov, informations)
+    noise = torch.randn(root.shape[:2], generator=generator, dtype=torch.float64)
+    eta = (root @ noise[..., None])[..., 0]
     after = (posterior @ (precision @ error.double() + eta)[..., None])[..., 0]
     return error.double().pow(2).sum() - after.pow(2).sum(dim=1)
 
@@ -99,10 +109,11 @@ def ideal_rank_correlation(
     the linearised observations were exact."""
     generator = torch.Generator().manual_seed(seed)
     L = torch.linalg.cholesky(0.5 * (cov.double() + cov.double().T))
+    updates = linear_updates(cov, informations)
     values = []
     for _ in range(draws):
         error = L @ torch.randn(L.shape[0], generator=generator, dtype=torch.float64)
-        drops = simulated_drops(cov, informations, error, generator)
+        drops = simulated_drops(cov, informations, error, generator, updates)
         values.append(float(spearman_correlation(scores.double(), drops)))
     finite = [v for v in values if math.isfinite(v)]
     return float(np.mean(finite)) if finite else math.nan
