@@ -1,6 +1,7 @@
 """The active protocol end to end on the ellipsoid world: records, Table A, its plot and the sequence figure."""
 
 import math
+from dataclasses import replace
 
 import pytest
 from eval_world import make_run, tiny_settings
@@ -149,3 +150,65 @@ def test_a_world_without_cameras_skips_the_protocol_and_says_why(sphere_world, s
     run = make_run(WorldIndex.load(root), sphere_codes, tmp_path / "cache", "es", tmp_path, settings)
     assert active_records(run, settings, load_codes(sphere_codes / codes_file("test"))) == ([], [])
     assert "Table A skipped" in caplog.text and "no cameras" in caplog.text
+
+
+def _kept_run(sphere_world, sphere_codes, tmp_path, **overrides):
+    from ushape.decoder.artifacts import codes_file, load_codes
+
+    values = dict(
+        protocols=("active",), active_views=2, active_scales=(1.0,), active_strategies=("random", "information")
+    )
+    settings = tiny_settings(**{**values, **overrides})
+    run = make_run(sphere_world, sphere_codes, tmp_path / "cache", "es", tmp_path, settings)
+    return run, settings, load_codes(sphere_codes / codes_file("test"))
+
+
+def test_a_finished_sequence_is_kept_and_a_rerun_reads_it_instead_of_running_it(
+    sphere_world, sphere_codes, tmp_path, monkeypatch
+):
+    import json
+
+    from ushape.evaluation import active
+
+    run, settings, codes = _kept_run(sphere_world, sphere_codes, tmp_path, active_shapes=1)
+    cache = tmp_path / "cache"
+    first = active.active_records(run, settings, codes, cache)
+    assert len(list((cache / "active").glob("*.json"))) == 2  # one shape x two strategies
+    ran = []
+    run_sequence = active.run_sequence
+    monkeypatch.setattr(active, "run_sequence", lambda *a, **k: ran.append(a[4]) or run_sequence(*a, **k))
+    # The same selection: nothing runs, and what comes back is what was computed (NaN included).
+    assert json.dumps(active.active_records(run, settings, codes, cache)) == json.dumps(first) and ran == []
+    # A larger selection runs only the sequences not kept yet: the second shape's.
+    records, diagnostics = active.active_records(run, replace(settings, active_shapes=None), codes, cache)
+    assert ran == ["random", "information"] and len(diagnostics) == 4
+    assert json.dumps([r for r in records if r["shape_id"] == "test_0"]) == json.dumps(first[0])
+    # No cache folder: every sequence runs.
+    active.active_records(run, settings, codes, None)
+    assert ran == ["random", "information"] * 2
+
+
+def test_a_kept_sequence_is_keyed_by_what_decides_it(sphere_world, sphere_codes, tmp_path, caplog):
+    from ushape.evaluation.active_cache import load_sequence, sequence_file
+
+    run, settings, _ = _kept_run(sphere_world, sphere_codes, tmp_path)
+    cache = tmp_path / "cache"
+
+    def key(settings=settings, scale=1.0, observe="none", strategy="random"):
+        return sequence_file(cache, run, settings, "test_0", scale, observe, strategy)
+
+    base = key()
+    assert key(replace(settings, active_shapes=1, active_strategies=("random",), active_scales=(1.0, 0.1))) == base
+    assert key(replace(settings, active_refine_iterations=3)) != base
+    assert key(replace(settings, seed=1)) != base and key(scale=0.1) != base
+    assert key(observe="masks") != base and key(strategy="farthest") != base
+    (tmp_path / "temperature.json").write_text('{"temperature": 2.0}')  # beside the checkpoint: a refit prior
+    refit = key()
+    assert refit != base
+    (tmp_path / "refinement_calibration.json").write_text("{}")
+    assert key() != refit
+    assert sequence_file(None, run, settings, "test_0", 1.0, "none", "random") is None
+    refit = key()
+    refit.parent.mkdir(parents=True)
+    refit.write_text('{"steps": [')  # cut off: reported and computed again, not trusted
+    assert load_sequence(refit) is None and "computing it again" in caplog.text

@@ -20,6 +20,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from ushape.decoder.artifacts import CodeTable
+from ushape.evaluation.active_cache import load_sequence, sequence_file, store_sequence
 from ushape.evaluation.active_diagnostics import RealisedDrops, decision_diagnostics, view_spread
 from ushape.evaluation.locality import has_cameras
 from ushape.evaluation.plots import save_figure
@@ -117,9 +118,10 @@ def strategy_options(name: str, size: int, predictor, observer) -> dict:
     return options
 
 
-def active_records(run, settings, codes: CodeTable) -> tuple[list[dict], list[dict]]:
+def active_records(run, settings, codes: CodeTable, cache_dir: Path | None = None) -> tuple[list[dict], list[dict]]:
     """Records: one per (shape, min scale, strategy and observer, views 1..N), the belief after that many views,
-    scored. Diagnostics: one per sequence, its views' spread and what its decisions were based on (Table A-why)."""
+    scored. Diagnostics: one per sequence, its views' spread and what its decisions were based on (Table A-why).
+    Each finished sequence is kept under cache_dir and read back on a later run (`evaluation.active_cache`)."""
     if not run.spec.probabilistic:
         log.info("active protocol skipped for %s: it predicts no variance to plan with", run.spec.label)
         return [], []
@@ -138,20 +140,32 @@ def active_records(run, settings, codes: CodeTable) -> tuple[list[dict], list[di
         for scale in settings.active_scales:
             encode = ViewEncoder(run.predictor, candidates, scale, settings.seed)
             for observe in observable(settings.active_observe, candidates):
-                observer = observer_for(settings, observe)
                 for name in settings.active_strategies:
-                    steps = sequence(run, settings, candidates, encode, name, observer, true_code)
                     row = {"encoder": run.spec.name, "label": run.spec.label, "min_scale": float(scale)}
                     row["method"] = method_name(name, observe)
-                    records += step_records(run, row, shape_id, steps)
-                    drops = RealisedDrops(encode, true_code, run.predictor.decoder, observer)
-                    decisions = decision_diagnostics(
-                        steps, drops, run.predictor.decoder, name in INFORMATION_STRATEGIES
-                    )
+                    cache = sequence_file(cache_dir, run, settings, shape_id, scale, observe, name)
+                    kept = load_sequence(cache)
+                    if kept is None:
+                        kept = run_sequence(run, settings, candidates, encode, name, observe, true_code)
+                        store_sequence(cache, **kept)
+                    records += [{**row, **step} for step in kept["steps"]]
                     diagnostics.append(
-                        {**row, "shape_id": shape_id, "spread": view_spread(steps, candidates), "decisions": decisions}
+                        {**row, "shape_id": shape_id, "spread": kept["spread"], "decisions": kept["decisions"]}
                     )
     return records, diagnostics
+
+
+def run_sequence(run, settings, candidates, encode, name: str, observe: str, true_code) -> dict:
+    """One sequence run and scored: {"steps": a record per step (without the row's names), "spread": the views'
+    spread, "decisions": Table A-why's rows}."""
+    observer = observer_for(settings, observe)
+    steps = sequence(run, settings, candidates, encode, name, observer, true_code)
+    drops = RealisedDrops(encode, true_code, run.predictor.decoder, observer)
+    return {
+        "steps": step_records(run, candidates.shape_id, steps),
+        "spread": view_spread(steps, candidates),
+        "decisions": decision_diagnostics(steps, drops, run.predictor.decoder, name in INFORMATION_STRATEGIES),
+    }
 
 
 def observable(names, candidates) -> list[str]:
@@ -167,14 +181,14 @@ def observable(names, candidates) -> list[str]:
     return [n for n in names if n == FusedGaussian.name]
 
 
-def step_records(run, row: dict, shape_id: str, steps) -> list[dict]:
+def step_records(run, shape_id: str, steps) -> list[dict]:
     """A record per step: the belief's code after k views scored against the shape, with the step's seconds."""
     records = []
     for k, step in enumerate(steps, start=1):
         scores = run.reconstructor.scores(step.mu, shape_id)
         views = "-".join(str(s.view) for s in steps[:k])
         records.append(
-            {**row, "protocol": PROTOCOL, "views": k, "shape_id": shape_id, "item": views}
+            {"protocol": PROTOCOL, "views": k, "shape_id": shape_id, "item": views}
             | {"iou": scores["iou"], "cd": scores["cd"], "seconds": step.seconds, "fallback": step.fallback or ""}
         )
     return records

@@ -15,7 +15,7 @@ class Active(Protocol):
     def run(self, context) -> Output:
         if context.run.method is not None:  # it plans with the encoder itself: the plain run's rows say it
             return Output()
-        records, diagnostics = active_records(context.run, context.settings, context.split_codes())
+        records, diagnostics = active_records(context.run, context.settings, context.split_codes(), context.cache_dir)
         return Output(records=records, rows={"active": diagnostics})
 
     def save_figures(self, run, settings, out_dir: Path) -> list[Path]:
