@@ -10,7 +10,7 @@ from ushape.data.cameras import camera_centre
 from ushape.propagation.depth_implicit import depth_uncertainty_implicit, std_agreement
 from ushape.propagation.monte_carlo import sample_codes
 from ushape.propagation.sphere_tracing import depth_uncertainty
-from ushape.reconstruction.pipeline import CANONICAL_CAMERA
+from ushape.reconstruction.view_depth import CANONICAL_CAMERA
 
 
 class RadiusDecoder(torch.nn.Module):

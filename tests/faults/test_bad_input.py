@@ -24,7 +24,7 @@ from repo_commands import run_command
 from ushape import atomic
 from ushape.data.augment import read_image
 from ushape.decoder.artifacts import DECODER_FILE, save_decoder
-from ushape.reconstruction.pipeline import view_camera
+from ushape.reconstruction.view_depth import view_camera
 
 TESTS = Path(__file__).resolve().parents[1]
 LATENT = 8  # the tiny_run fixture's code size

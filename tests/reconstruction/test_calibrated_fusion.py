@@ -12,7 +12,7 @@ from ushape.reconstruction.calibrated_fusion import (
     default_fusion,
     refinement_prior,
 )
-from ushape.reconstruction.pipeline import sdf_floor, sdf_temperature
+from ushape.reconstruction.mesh_std import sdf_floor, sdf_temperature
 
 
 def _predictor(tmp_path, fitted: bool, shared_sdf_temperature: float | None = None):

@@ -16,8 +16,10 @@ from ushape.propagation.monte_carlo import sample_codes
 from ushape.recalibration import floor_grid
 from ushape.reconstruction.cli import build_fusion, main
 from ushape.reconstruction.export import read_glb_std, read_ply_std
-from ushape.reconstruction.pipeline import ReconstructionSettings, reconstruct, view_camera
+from ushape.reconstruction.pipeline import reconstruct
 from ushape.reconstruction.predictor import load_predictor
+from ushape.reconstruction.settings import ReconstructionSettings
+from ushape.reconstruction.view_depth import view_camera
 
 
 class SphereDecoder(torch.nn.Module):

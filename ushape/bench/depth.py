@@ -1,7 +1,7 @@
 """Wall-clock cost of per-pixel depth uncertainty for the views of reconstruct.py: Monte Carlo against implicit.
 
 Cameras: `views` on the protocol's orbit, evenly spread in azimuth, at the middle of R2N2's elevation range
-and reconstruct.py's canonical distance and field of view (pipeline.CANONICAL_CAMERA). Monte Carlo draws
+and reconstruct.py's canonical distance and field of view (view_depth.CANONICAL_CAMERA). Monte Carlo draws
 n_codes codes once and sphere-traces each per view (reconstruct.py's `--depth-method mc`); the implicit
 method traces the mean code once per view and differentiates the hit depth (its default). The implicit
 row's note says how well its std maps agree with the Monte Carlo ones just timed, which carry their own
@@ -24,7 +24,7 @@ from ushape.propagation.depth_implicit import (
 )
 from ushape.propagation.monte_carlo import sample_codes
 from ushape.propagation.sphere_tracing import DepthStats, depth_uncertainty
-from ushape.reconstruction.pipeline import CANONICAL_CAMERA
+from ushape.reconstruction.view_depth import CANONICAL_CAMERA
 
 
 def orbit_cameras(views: int, size: int) -> list[tuple]:

@@ -33,9 +33,10 @@ from ushape.mesh.extraction import EmptySurfaceError
 from ushape.propagation.depth_implicit import DEPTH_METHODS
 from ushape.propagation.mesh import METHODS
 from ushape.reconstruction.calibrated_fusion import calibrate_fusion, default_fusion
-from ushape.reconstruction.pipeline import ReconstructionSettings, reconstruct
+from ushape.reconstruction.pipeline import reconstruct
 from ushape.reconstruction.predictor import collect_inputs, load_predictor
 from ushape.reconstruction.refine_calibration import FIT_SHAPES, fit_and_store_refinement_calibration
+from ushape.reconstruction.settings import ReconstructionSettings
 from ushape.reconstruction.temperature_store import fit_and_store_temperature
 from ushape.refinement import MODES as REFINE_MODES
 from ushape.refinement.inputs import input_views

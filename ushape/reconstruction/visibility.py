@@ -1,7 +1,7 @@
 """Which mesh vertices an input view sees, and whether the uncertainty sits on the ones it does not.
 
 The paper's figures show uncertainty on the parts a view hides or crops away. For a view with a known
-camera (a render of the world, see `pipeline.view_camera`) this measures it: every vertex is ray cast
+camera (a render of the world, see `view_depth.view_camera`) this measures it: every vertex is ray cast
 from the camera centre against the reconstructed mesh itself, and the median std of the hidden vertices
 is compared with that of the visible ones (> 1: the view's unseen parts are the less certain ones).
 """

@@ -39,8 +39,9 @@ from ushape.fusion import FusedCode
 from ushape.mesh.extraction import EmptySurfaceError, extract_mesh
 from ushape.metrics.pix3d import ShapeReference, pix3d_metrics, reference_from_mesh
 from ushape.reconstruction.calibrated_fusion import calibrated_counterpart
-from ushape.reconstruction.pipeline import ReconstructionSettings, reconstruct
+from ushape.reconstruction.pipeline import reconstruct
 from ushape.reconstruction.predictor import load_predictor
+from ushape.reconstruction.settings import ReconstructionSettings
 
 log = logging.getLogger(__name__)
 EMPTY_NOTE = "empty_surface.txt"

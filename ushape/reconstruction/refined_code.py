@@ -1,0 +1,63 @@
+"""The fused code refined on the input views (`ushape.refinement`), as reconstruct.py applies it: the views'
+cameras, masks and depth, the stored --fit-refinement calibration, and the record summary.json keeps."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any, Sequence
+
+import torch
+
+from ushape.fusion.rules import FusedCode
+from ushape.reconstruction.settings import ReconstructionSettings
+from ushape.refinement import ObservationSettings, ObservedView, RefineSettings, refine
+from ushape.refinement.inputs import input_views
+
+log = logging.getLogger(__name__)
+# What summary.json's refinement record keeps of the calibration it applied (reconstruct.py --fit-refinement).
+APPLIED = ("information_scale", "sdf_temperature", "sdf_floor", "seen", "size", "n_shapes")
+
+
+def refined(
+    decoder: torch.nn.Module,
+    fused: FusedCode,
+    inputs: Sequence[str | Path],
+    paths: Sequence[Path],  # the inputs that could be read
+    observations: Sequence[ObservedView | None] | None,  # one per input
+    settings: ReconstructionSettings,
+    calibration: dict[str, Any] | None = None,  # --fit-refinement's fit for this mode (None: none)
+) -> tuple[FusedCode, dict[str, Any], list[ObservedView]]:
+    """The fused code refined on the views (FusedCode with var the full covariance [D, D]), its record and the
+    views it was refined on; with a calibration, the posterior at its information scale s, and the record
+    carries the calibration."""
+    if observations is None:
+        views = input_views(paths)
+    elif len(observations) != len(inputs):
+        raise ValueError(f"{len(observations)} observed views for {len(inputs)} input images: pass one per image")
+    else:
+        by_input = dict(zip((Path(i) for i in inputs), observations))
+        views = [by_input[Path(p)] for p in paths]
+    scale = 1.0 if calibration is None else float(calibration["information_scale"])
+    if calibration is not None and calibration.get("size") != settings.refine_size:
+        log.warning(
+            "the refinement's calibration was fitted at %s rays a side, this refinement uses %d: refit with "
+            "`reconstruct.py --fit-refinement %s --refine-size %d`",
+            calibration.get("size"),
+            settings.refine_size,
+            settings.refine,
+            settings.refine_size,
+        )
+    observation = ObservationSettings(size=settings.refine_size)
+    options = RefineSettings(
+        mode=settings.refine, observation=observation, information_scale=scale, starts=settings.refine_starts
+    )
+    posterior = refine(decoder, fused.mu, fused.var, views, options)
+    record = {"mode": settings.refine, "starts": settings.refine_starts, **posterior.record()}
+    record["views_with_camera"] = sum(v is not None for v in views)
+    record["calibration"] = None if calibration is None else {k: calibration.get(k) for k in APPLIED}
+    record["mu"] = posterior.mu.tolist()
+    views = [v for v in views if v is not None]
+    if posterior.fallback is not None:  # the prior exactly, in its own (diagonal) form
+        return fused, record, views
+    return FusedCode(posterior.mu, posterior.cov, fused.kept), record, views

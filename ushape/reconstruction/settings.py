@@ -1,0 +1,30 @@
+"""What `reconstruct` does beyond its inputs: one frozen dataclass, every field a flag of reconstruct.py."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ushape.reconstruction.export import DEFAULT_CMAP
+
+
+@dataclass(frozen=True)
+class ReconstructionSettings:
+    """What `reconstruct` does beyond the inputs; every field has a command-line flag in reconstruct.py."""
+
+    resolution: int = 128
+    uncertainty: str = "linearised"
+    n_samples: int = 10  # codes for MC vertex uncertainty
+    depth_size: int = 64
+    depth_method: str = "implicit"  # "implicit": trace the mean code once; "mc": trace depth_codes sampled codes
+    depth_codes: int = 10  # M codes sphere-traced per view by depth_method "mc"
+    depth_steps: int = 50
+    std_max: float | None = None
+    cmap: str = DEFAULT_CMAP
+    seed: int = 0
+    refine: str | None = None  # "masks" | "depth": refine the fused code on the views (ushape.refinement)
+    refine_size: int = 32  # rays per image side the refinement compares
+    refine_starts: int = 0  # prior draws scored beside the fused mean; the LM starts from the lowest energy
+    # The decoder's: fp32, bf16, or auto (bf16 where faster: AMX CPUs, CUDA >= 8.0). Under bf16 the mesh
+    # is searched in bf16 and placed by fp32 values; linearised and implicit stds use bf16 passes;
+    # Monte Carlo stds stay fp32.
+    precision: str = "auto"
