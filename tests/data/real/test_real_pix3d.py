@@ -9,13 +9,13 @@ from PIL import Image
 
 from ushape.data.real.pix3d import (
     Pix3DImages,
-    Pix3DWorld,
     crop_resize,
     load_annotations,
     load_voxels,
     multiview_groups,
     square_box,
 )
+from ushape.data.real.pix3d_world import Pix3DWorld
 
 W, H = 60, 40
 BBOX = (20, 10, 40, 30)  # the red object in every photo

@@ -17,7 +17,8 @@ from tiny_runs import tiny_train
 from ushape.data.cameras import look_at
 from ushape.data.layout import WorldIndex
 from ushape.data.real.mesh_sdf import load_mesh, normalise_mesh
-from ushape.data.real.pix3d import Pix3DEntry, Pix3DWorld, multiview_groups
+from ushape.data.real.pix3d import Pix3DEntry, multiview_groups
+from ushape.data.real.pix3d_world import Pix3DWorld
 from ushape.data.rendering import render_views
 
 REPO = Path(__file__).resolve().parents[3]
