@@ -191,23 +191,24 @@ def test_a_finished_sequence_is_kept_and_a_rerun_reads_it_instead_of_running_it(
 def test_a_kept_sequence_is_keyed_by_what_decides_it(sphere_world, sphere_codes, tmp_path, caplog):
     from ushape.evaluation.active_cache import load_sequence, sequence_file
 
-    run, settings, _ = _kept_run(sphere_world, sphere_codes, tmp_path)
-    cache = tmp_path / "cache"
+    run, settings, codes = _kept_run(sphere_world, sphere_codes, tmp_path)
+    cache, code = tmp_path / "cache", codes.lookup("test_0")
 
-    def key(settings=settings, scale=1.0, observe="none", strategy="random"):
-        return sequence_file(cache, run, settings, "test_0", scale, observe, strategy)
+    def key(settings=settings, scale=1.0, observe="none", strategy="random", code=code):
+        return sequence_file(cache, run, settings, "test_0", code, scale, observe, strategy)
 
     base = key()
     assert key(replace(settings, active_shapes=1, active_strategies=("random",), active_scales=(1.0, 0.1))) == base
     assert key(replace(settings, active_refine_iterations=3)) != base
     assert key(replace(settings, seed=1)) != base and key(scale=0.1) != base
     assert key(observe="masks") != base and key(strategy="farthest") != base
+    assert key(code=code + 1e-3) != base  # the shape's own code refitted (a world whose test codes are fitted)
     (tmp_path / "temperature.json").write_text('{"temperature": 2.0}')  # beside the checkpoint: a refit prior
     refit = key()
     assert refit != base
     (tmp_path / "refinement_calibration.json").write_text("{}")
     assert key() != refit
-    assert sequence_file(None, run, settings, "test_0", 1.0, "none", "random") is None
+    assert sequence_file(None, run, settings, "test_0", code, 1.0, "none", "random") is None
     refit = key()
     refit.parent.mkdir(parents=True)
     refit.write_text('{"steps": [')  # cut off: reported and computed again, not trusted

@@ -143,7 +143,7 @@ def active_records(run, settings, codes: CodeTable, cache_dir: Path | None = Non
                 for name in settings.active_strategies:
                     row = {"encoder": run.spec.name, "label": run.spec.label, "min_scale": float(scale)}
                     row["method"] = method_name(name, observe)
-                    cache = sequence_file(cache_dir, run, settings, shape_id, scale, observe, name)
+                    cache = sequence_file(cache_dir, run, settings, shape_id, true_code, scale, observe, name)
                     kept = load_sequence(cache)
                     if kept is None:
                         kept = run_sequence(run, settings, candidates, encode, name, observe, true_code)

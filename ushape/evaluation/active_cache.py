@@ -6,7 +6,9 @@ crash) would otherwise start again from its first shape. Each sequence's scored 
 row are written, atomically, under the evaluation's cache folder (`cache_dir`, `null` keeps none) as soon as
 it ends, keyed by everything that decides them:
 
-- the encoder (checkpoint and temperature), the decoder, the world and the shape;
+- the encoder (checkpoint and temperature), the decoder, the world, the shape and its own code (the oracle
+  and Table A-why's realised drops read it; a world whose test codes the evaluation fits, e.g. Pix3D, refits
+  them with its settings);
 - the crop min scale, the observer, the strategy;
 - the settings a sequence reads (seed, split, views to take, candidates, rays and LM steps of the refinement,
   mesh resolution and scoring points, decoder precision), not those that only choose which sequences run
@@ -26,6 +28,8 @@ import hashlib
 import json
 import logging
 from pathlib import Path
+
+from torch import Tensor
 
 from ushape import atomic
 from ushape.evaluation.views import encoder_tag
@@ -58,7 +62,14 @@ def file_digest(path: Path) -> str:
 
 
 def sequence_file(
-    cache_dir: Path | None, run, settings, shape_id: str, scale: float, observe: str, strategy: str
+    cache_dir: Path | None,
+    run,
+    settings,
+    shape_id: str,
+    true_code: Tensor,  # [D] the shape's own code
+    scale: float,
+    observe: str,
+    strategy: str,
 ) -> Path | None:
     """Where one sequence's result is kept (None: the evaluation keeps no cache)."""
     if cache_dir is None:
@@ -70,6 +81,7 @@ def sequence_file(
         run.reconstructor.decoder_tag,
         str(Path(run.world.root).resolve()),
         shape_id,
+        hashlib.sha1(true_code.detach().float().cpu().numpy().tobytes()).hexdigest(),
         f"{float(scale):g}",
         observe,
         strategy,
