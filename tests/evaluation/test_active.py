@@ -211,5 +211,7 @@ def test_a_kept_sequence_is_keyed_by_what_decides_it(sphere_world, sphere_codes,
     assert sequence_file(None, run, settings, "test_0", code, 1.0, "none", "random") is None
     refit = key()
     refit.parent.mkdir(parents=True)
-    refit.write_text('{"steps": [')  # cut off: reported and computed again, not trusted
-    assert load_sequence(refit) is None and "computing it again" in caplog.text
+    for damaged in ('{"steps": [', '[{"steps": []}]', '{"steps": []}'):  # cut off, not a sequence, keys missing
+        refit.write_text(damaged)
+        assert load_sequence(refit) is None  # reported and computed again, not trusted
+    assert caplog.text.count("computing it again") == 3

@@ -99,8 +99,8 @@ def load_sequence(path: Path | None) -> dict | None:
         return None
     try:
         blob = json.loads(path.read_text())
-        if not {"steps", "spread", "decisions"} <= set(blob):
-            raise ValueError(f"missing keys, has {sorted(blob)}")
+        if not isinstance(blob, dict) or not {"steps", "spread", "decisions"} <= set(blob):
+            raise ValueError("not a sequence: it needs steps, spread and decisions")
         return blob
     except (ValueError, OSError) as error:  # json.JSONDecodeError is a ValueError
         log.warning("active protocol: cannot read the cached sequence %s (%s); computing it again", path, error)
