@@ -11,7 +11,7 @@ import torch
 
 from ushape.fusion.rules import FusedCode
 from ushape.reconstruction.settings import ReconstructionSettings
-from ushape.refinement import ObservationSettings, ObservedView, RefineSettings, refine
+from ushape.refinement import ObservedView, refine, refine_settings
 from ushape.refinement.inputs import input_views
 
 log = logging.getLogger(__name__)
@@ -48,9 +48,8 @@ def refined(
             settings.refine,
             settings.refine_size,
         )
-    observation = ObservationSettings(size=settings.refine_size)
-    options = RefineSettings(
-        mode=settings.refine, observation=observation, information_scale=scale, starts=settings.refine_starts
+    options = refine_settings(
+        settings.refine, settings.refine_size, information_scale=scale, starts=settings.refine_starts
     )
     posterior = refine(decoder, fused.mu, fused.var, views, options)
     record = {"mode": settings.refine, "starts": settings.refine_starts, **posterior.record()}
