@@ -73,16 +73,17 @@ def test_rules_of_a_run_include_shared_only_once_it_is_fitted(tmp_path):
     )
     rules, _, sdf_t = evaluation_rules(checkpoint, 4)
     assert rules["shared"].sdf_temperature == rules["shared-4"].sdf_temperature == 1.8 and sdf_t == 1.5
-    assert rule_sdf_temperature(rules["shared"], sdf_t) == (1.8, None)
-    assert rule_sdf_temperature(rules["bayesian"], sdf_t) == (1.5, None)
+    assert rule_sdf_temperature(rules["shared"], sdf_t) == (1.8, None, None)
+    assert rule_sdf_temperature(rules["bayesian"], sdf_t) == (1.5, None, None)
     shared_error = {**record["shared_error"], "n_shapes": 3, "sdf_temperature": 1.8, "sdf_floor": 0.01}
+    shared_error["sdf_distance_scale"] = 0.6
     (tmp_path / "temperature.json").write_text(json.dumps({**record, "shared_error": shared_error}))
     rules, _, sdf_t = evaluation_rules(checkpoint, 4)
-    assert rule_sdf_temperature(rules["shared-4"], sdf_t) == (1.8, 0.01)  # the decoder's misfit floor with it
+    assert rule_sdf_temperature(rules["shared-4"], sdf_t) == (1.8, 0.01, 0.6)  # the misfit floor, the distance term
     refined = rule_sdf_temperature(rules["shared"], sdf_t, after=lambda fused, keys: fused)
-    assert refined == (1.5, None)  # refined: not the fused variance the shared factor and floor were fitted on
+    assert refined == (1.5, None, None)  # refined: not the fused variance the shared factor and floor were fitted on
     fitted = rule_sdf_temperature(rules["shared"], sdf_t, after=lambda fused, keys: fused, after_sdf=(0.7, 0.004))
-    assert fitted == (0.7, 0.004)  # a refinement's own SDF variance calibration, where one was fitted for it
+    assert fitted == (0.7, 0.004, None)  # a refinement's own SDF variance calibration, where one was fitted for it
     fused = rules["shared"](torch.zeros(2, 2), torch.ones(2, 2))
     assert torch.allclose(fused.var, torch.tensor([0.1 + 0.25, 0.2 + 0.25]))
     row = {"label": "Ours", "fusion": "shared", "n_views": 3, "n_shapes": 2}

@@ -12,7 +12,7 @@ from ushape.reconstruction.calibrated_fusion import (
     default_fusion,
     refinement_prior,
 )
-from ushape.reconstruction.mesh_std import sdf_floor, sdf_temperature
+from ushape.reconstruction.mesh_std import sdf_distance_scale, sdf_floor, sdf_temperature
 
 
 def _predictor(tmp_path, fitted: bool, shared_sdf_temperature: float | None = None):
@@ -62,6 +62,18 @@ def test_the_meshes_std_takes_the_rules_sdf_temperature_unless_the_code_was_refi
     refined["calibration"] = {"sdf_temperature": 0.6, "sdf_floor": 0.004}  # unless fitted for the refinement
     assert sdf_temperature(shared, predictor, refined) == 0.6 and sdf_floor(shared, refined) == 0.004
     assert sdf_temperature(BayesianFusion(), predictor) == 1.5
+
+
+def test_the_rules_distance_term_is_read_with_its_fit_and_not_given_to_a_refined_code(tmp_path):
+    predictor = _predictor(tmp_path, True, shared_sdf_temperature=0.3)
+    record = json.loads((tmp_path / "temperature.json").read_text())
+    record["shared_error"].update(sdf_floor=0.012, sdf_distance_scale=0.67)
+    (tmp_path / "temperature.json").write_text(json.dumps(record))
+    shared = default_fusion(predictor)
+    assert (shared.sdf_temperature, shared.sdf_floor, shared.sdf_distance_scale) == (0.3, 0.012, 0.67)
+    assert "SDF distance scale 0.67" in shared.calibration  # summary.json's fusion_calibration says so
+    assert sdf_distance_scale(shared) == 0.67 and sdf_distance_scale(BayesianFusion()) is None
+    assert sdf_distance_scale(shared, {"mode": "masks", "calibration": None}) is None  # refined: its own fit
 
 
 def test_the_refinement_prior_scales_the_views_itself_and_leaves_the_predictor_alone(tmp_path):

@@ -76,16 +76,16 @@ def marginal(var: Tensor) -> Tensor:  # [R, D] or [R, D, D] -> [R, D]
 
 def rule_sdf_temperature(
     rule: FusionRule, sdf_temperature: float | None, after=None, after_sdf: tuple | None = None
-) -> tuple[float | None, float | None]:
-    """(SDF temperature, SDF floor) a rule's fused variance gets: after a method's step, the method's own where
-    fitted (`after_sdf`), else the run's single-view temperature and no floor; with no step, the rule's own
-    where it carries them (`shared`, fitted on its fused val variance), else the same."""
+) -> tuple[float | None, float | None, float | None]:
+    """(SDF temperature, SDF floor, SDF distance scale) a rule's fused variance gets: after a method's step, the
+    method's (temperature, floor) where fitted (`after_sdf`), else the run's single-view temperature alone; with
+    no step, the rule's own where it carries them (`shared`, fitted on its fused val variance), else the same."""
     if after is not None:
-        return after_sdf if after_sdf is not None else (sdf_temperature, None)
+        return (*after_sdf, None) if after_sdf is not None else (sdf_temperature, None, None)
     own = getattr(rule, "sdf_temperature", None)
     if own is None:
-        return sdf_temperature, None
-    return own, getattr(rule, "sdf_floor", None)
+        return sdf_temperature, None, None
+    return own, getattr(rule, "sdf_floor", None), getattr(rule, "sdf_distance_scale", None)
 
 
 def calibration_across_views(

@@ -108,8 +108,9 @@ class SharedErrorFusion:
     With k, only the K lowest-trace views are fused, chosen exactly as Bayesian-K chooses them.
     sdf_temperature: the factor on this rule's fused variance once propagated to SDF values (fitted on
     val beside S; None: whoever propagates it applies the single-view SDF temperature). sdf_floor: the
-    decoder's own SDF misfit (a std, measured on val at the shapes' own codes), added to that variance:
-    T var + floor^2 (None: no floor).
+    decoder's own SDF misfit (a std, measured on val at the shapes' own codes), added to that variance.
+    sdf_distance_scale: b, a std that grows with the clamped mean SDF's distance from the surface, where the
+    fused error grows (`ushape.recalibration.sdf_distance`): T var + floor^2 + (b |mean|)^2 (None: no term).
     """
 
     def __init__(
@@ -121,17 +122,20 @@ class SharedErrorFusion:
         source: str | None = None,
         sdf_temperature: float | None = None,
         sdf_floor: float | None = None,
+        sdf_distance_scale: float | None = None,
     ) -> None:
         if var_floor <= 0:
             raise ValueError(f"var_floor must be > 0, got {var_floor}")
         self.k = None if k is None else check_k(k)
         self.sdf_temperature = check_sdf_temperature(sdf_temperature)
         self.sdf_floor = check_optional_number(sdf_floor, "sdf_floor", zero_ok=True)
+        self.sdf_distance_scale = check_optional_number(sdf_distance_scale, "sdf_distance_scale", zero_ok=True)
         # What a summary says about the fit: where S and c came from (None until fitted).
         fitted = (
             "shared error S, view scale c"
             + ("" if self.sdf_temperature is None else f" and SDF factor {self.sdf_temperature:.3g}")
             + ("" if self.sdf_floor is None else f" (SDF floor {self.sdf_floor:.3g})")
+            + ("" if self.sdf_distance_scale is None else f" (SDF distance scale {self.sdf_distance_scale:.3g})")
         )
         self.calibration = None if shared_var is None else f"{fitted} fitted on val: {source}"
         self.shared_var = None if shared_var is None else torch.as_tensor(shared_var, dtype=torch.float32)
@@ -148,10 +152,12 @@ class SharedErrorFusion:
         source: str | None = None,
         sdf_temperature: float | None = None,
         sdf_floor: float | None = None,
+        sdf_distance_scale: float | None = None,
     ) -> SharedErrorFusion:
-        """This rule with a fitted shared error S [D], per-view scale c, SDF temperature and floor (`source`:
-        where they were read)."""
-        return SharedErrorFusion(shared_var, view_scale, self.k, self.var_floor, source, sdf_temperature, sdf_floor)
+        """This rule with a fitted shared error S [D], per-view scale c and SDF calibration (temperature, floor,
+        distance scale; `source`: where they were read)."""
+        sdf = (sdf_temperature, sdf_floor, sdf_distance_scale)
+        return SharedErrorFusion(shared_var, view_scale, self.k, self.var_floor, source, *sdf)
 
     def _fit(self) -> Tensor:
         if self.shared_var is None:

@@ -90,6 +90,23 @@ def propagate_to_sdf(
     return mean, variance
 
 
+def clamped_sdf_predictions(
+    decoder,
+    mu: Tensor,  # [R, D]
+    var: Tensor,  # [R, D] or [R, D, D]
+    points: Tensor,  # [P, 3]
+    sdf_true: Tensor,  # [P]
+) -> tuple[Tensor, Tensor, Tensor]:
+    """(|error| [R, P], variance [R, P], mean [R, P]) of the linearised SDF of each Gaussian at a shape's
+    ground-truth samples, all clamped as evaluation clamps them, before any SDF calibration."""
+    errors, variances, means = [], [], []
+    truth = sdf_true.clamp(-SDF_CLAMP, SDF_CLAMP)
+    for code_mu, code_var in zip(mu, var):
+        mean, variance = propagate_to_sdf(decoder, code_mu, code_var, points, "linearised", clamp=SDF_CLAMP)
+        errors.append((mean - truth).abs()), variances.append(variance), means.append(mean)
+    return torch.stack(errors), torch.stack(variances), torch.stack(means)
+
+
 def clamped_sdf_errors(
     decoder,
     mu: Tensor,  # [R, D]
@@ -98,18 +115,17 @@ def clamped_sdf_errors(
     sdf_true: Tensor,  # [P]
     temperature: float | None = None,
     floor: float | None = None,
+    distance_scale: float | None = None,
 ) -> tuple[Tensor, Tensor]:
     """(|error| [R, P], std [R, P]) of the linearised SDF of each Gaussian at a shape's ground-truth samples, both
-    clamped as evaluation clamps them; the SDF-space temperature scales the variance and the floor (a std) is added
-    to it, where given."""
-    errors, stds = [], []
-    truth = sdf_true.clamp(-SDF_CLAMP, SDF_CLAMP)
-    for code_mu, code_var in zip(mu, var):
-        mean, variance = propagate_to_sdf(decoder, code_mu, code_var, points, "linearised", clamp=SDF_CLAMP)
-        if temperature is not None:
-            variance = variance * temperature
-        if floor is not None:
-            variance = variance + floor**2
-        errors.append((mean - truth).abs())
-        stds.append(variance.sqrt())
-    return torch.stack(errors), torch.stack(stds)
+    clamped as evaluation clamps them, with the SDF calibration where given: T var + floor^2 + (b |mean|)^2 (T the
+    SDF-space temperature, the floor a std, b the distance scale on the clamped mean's distance from the surface;
+    `ushape.recalibration.sdf_distance`)."""
+    errors, variance, mean = clamped_sdf_predictions(decoder, mu, var, points, sdf_true)
+    if temperature is not None:
+        variance = variance * temperature
+    if floor is not None:
+        variance = variance + floor**2
+    if distance_scale is not None:
+        variance = variance + (distance_scale * mean).square()
+    return errors, variance.sqrt()

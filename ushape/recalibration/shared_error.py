@@ -10,8 +10,9 @@ variance ("proportional": S = s mean_v var_v, one number fitted); "diagonal" kee
 own estimate (docs/fusion_calibration.md). Given S, c minimises the
 Gaussian NLL of the single views' errors under N(0, S + c var), so one view stays as calibrated as the
 temperature left it. `ushape.fusion.SharedErrorFusion` fuses with S + c (sum_v var_v^-1)^-1. The rule's own
-SDF temperature (its fused variance propagated to SDF values, fitted on val fused 1, 3 and 10 views at a
-time) is fitted by `ushape.reconstruction.temperature_store` and kept here beside S.
+SDF calibration (its fused variance propagated to SDF values: a factor, a floor and a term in the distance
+from the predicted surface, fitted on val fused 1, 3 and 10 views at a time) is fitted by
+`ushape.reconstruction.temperature_store` and kept here beside S.
 """
 
 from __future__ import annotations
@@ -32,7 +33,8 @@ SCALE_RANGE = (-8.0, 2.0)
 @dataclass(frozen=True)
 class SharedError:
     """A fitted shared error: S [D] (variance per latent dimension), the views' own scale c, shapes used,
-    and the SDF temperature and floor of the rule's fused SDF variance, T var + floor^2 (None where not fitted)."""
+    and the SDF calibration of the rule's fused SDF variance, T var + floor^2 + (b |clamp(mean)|)^2: its
+    temperature T, floor and distance scale b (`ushape.recalibration.sdf_distance`; None where not fitted)."""
 
     shared_var: Tensor  # [D]
     view_scale: float
@@ -40,12 +42,15 @@ class SharedError:
     sdf_temperature: float | None = None
     structure: str = "diagonal"  # how S was spread over the dimensions (STRUCTURES)
     sdf_floor: float | None = None  # the decoder's own SDF misfit (std), added to the fused SDF variance
+    sdf_distance_scale: float | None = None  # b: the std that grows with the distance from the surface
 
     def to_record(self) -> dict[str, Any]:
         record = {"var": self.shared_var.tolist(), "view_scale": self.view_scale, "n_shapes": self.n_shapes}
         record["structure"] = self.structure
         if self.sdf_floor is not None:
             record["sdf_floor"] = self.sdf_floor
+        if self.sdf_distance_scale is not None:
+            record["sdf_distance_scale"] = self.sdf_distance_scale
         return record if self.sdf_temperature is None else {**record, "sdf_temperature": self.sdf_temperature}
 
     @staticmethod
@@ -58,6 +63,7 @@ class SharedError:
             None if sdf is None else float(sdf),
             str(record.get("structure", "diagonal")),
             None if record.get("sdf_floor") is None else float(record["sdf_floor"]),
+            None if record.get("sdf_distance_scale") is None else float(record["sdf_distance_scale"]),
         )
 
 

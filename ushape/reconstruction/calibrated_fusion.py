@@ -37,9 +37,8 @@ def calibrate_fusion(fusion: Any, predictor: Predictor) -> Any:
 def with_fit(fusion: SharedErrorFusion, fit, checkpoint) -> SharedErrorFusion:
     """The shared rule carrying a run's fitted shared error and its SDF calibration (`read_shared_error`)."""
     source = str(temperature_path(checkpoint))
-    return fusion.calibrated(
-        fit.shared_var, fit.view_scale, source=source, sdf_temperature=fit.sdf_temperature, sdf_floor=fit.sdf_floor
-    )
+    sdf = (fit.sdf_temperature, fit.sdf_floor, fit.sdf_distance_scale)
+    return fusion.calibrated(fit.shared_var, fit.view_scale, source, *sdf)
 
 
 def default_fusion(predictor: Predictor, k: int | None = None) -> Any:

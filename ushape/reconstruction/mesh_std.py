@@ -54,6 +54,13 @@ def sdf_floor(fusion: Fusion, refinement: dict | None = None) -> float | None:
     return getattr(fusion, "sdf_floor", None)
 
 
+def sdf_distance_scale(fusion: Fusion, refinement: dict | None = None) -> float | None:
+    """b in the fusion rule's SDF variance T var + floor^2 + (b |mean|)^2 (`shared`, fitted on val); None for a
+    refined code (its fit has no distance term) or a rule without one. The mesh's std files leave the term out:
+    at the mesh's vertices the mean SDF is 0 up to the marching-cubes interpolation, so it adds ~nothing there."""
+    return None if refinement is not None else getattr(fusion, "sdf_distance_scale", None)
+
+
 def mesh_std(
     predictor: Predictor,
     fusion: Fusion,

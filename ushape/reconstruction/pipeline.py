@@ -25,7 +25,7 @@ from ushape.propagation.depth_implicit import DEPTH_METHODS
 from ushape.propagation.mesh import METHODS
 from ushape.reconstruction.export import coloured_mesh, write_mesh_files
 from ushape.reconstruction.figures import overview_figure
-from ushape.reconstruction.mesh_std import Fusion, mesh_std, sdf_floor, sdf_temperature
+from ushape.reconstruction.mesh_std import Fusion, mesh_std, sdf_distance_scale, sdf_floor, sdf_temperature
 from ushape.reconstruction.predictor import Predictor
 from ushape.reconstruction.refine_calibration import read_refinement_calibration
 from ushape.reconstruction.refined_code import refined
@@ -224,6 +224,9 @@ def write_summary(
         # fitted with a floor where the views saw the surface and one where they did not puts those in the mesh's
         # std instead (refinement.calibration.seen, and the fraction of vertices seen, refinement.seen_vertices).
         "sdf_floor": sdf_floor(fusion, refinement),
+        # The fusion rule's term in the distance from the predicted surface, (b |mean|)^2 (None: none); ~0 on
+        # the mesh, so its std files leave it out too; away from the surface the SDF std grows with it.
+        "sdf_distance_scale": sdf_distance_scale(fusion, refinement),
         "fusion": getattr(fusion, "name", type(fusion).__name__),
         "fusion_calibration": getattr(fusion, "calibration", None),
         "uncertainty": settings.uncertainty,

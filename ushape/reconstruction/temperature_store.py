@@ -10,12 +10,16 @@ val shape shares, S [D], and the views' own scale c, on the T-scaled variances
 (`ushape.recalibration.shared_error`), for the `shared` fusion rule, and that rule's own SDF temperature:
 the shared rule's fused variance is not a single view's (S moves variance between latent dimensions, so the
 decoder's Jacobian sees another mix), so its factor is fitted on it, the val views fused 1, 3 and 10 at a
-time as Table V fuses the test views, to the worst of the three calibration errors, with a floor where it
-lowers that error: the decoder's own SDF misfit at the val shapes' own codes (an error no code's variance
-expresses), measured and added as a std, T_sdf var + floor^2.
+time as Table V fuses the test views, with a floor where it lowers the worst calibration error: the
+decoder's own SDF misfit at the val shapes' own codes (an error no code's variance expresses), measured and
+added as a std, and a term that grows with the distance from the predicted surface, where the fused error
+grows and the propagated std does not: T_sdf var + floor^2 + (b |clamp(mean)|)^2, T_sdf and b fitted to the
+worst calibration error over the three view counts, on all samples and near the surface
+(`ushape.recalibration.sdf_distance`).
 `temperature.json` = {"temperature", "n_images", "nll_before", "nll_after", "shared_error": {"var",
-"view_scale", "n_shapes", "sdf_temperature", "sdf_floor", "sdf_decoder_misfit", "sdf_view_counts",
-"sdf_calibration_before", "sdf_calibration_after"}, "sdf_temperature", "sdf_calibration_before",
+"view_scale", "n_shapes", "sdf_temperature", "sdf_floor", "sdf_distance_scale", "sdf_decoder_misfit",
+"sdf_view_counts", "sdf_calibration_before", "sdf_calibration_after", "sdf_calibration_worst"},
+"sdf_temperature", "sdf_calibration_before",
 "sdf_calibration_after", "sdf_views", "checkpoint", "world"}.
 """
 
@@ -36,12 +40,12 @@ from ushape.decoder.query import code_sdf_fn, frozen
 from ushape.encoder.datamodule import RenderDataset
 from ushape.fusion import SharedErrorFusion
 from ushape.fusion.subsets import view_subsets
-from ushape.propagation import SDF_CLAMP, clamped_sdf_errors, propagate_to_sdf
+from ushape.propagation import SDF_CLAMP, clamped_sdf_predictions, propagate_to_sdf
+from ushape.recalibration.sdf_distance import fit_sdf_distance_calibration
 from ushape.recalibration.shared_error import SharedError, fit_shared_error
 from ushape.recalibration.temperature import (
     apply_temperature,
     fit_calibration_temperature,
-    fit_calibration_temperature_across,
     fit_temperature,
     gaussian_nll_with_temperature,
 )
@@ -104,23 +108,26 @@ def fused_sdf_errors(
     draws: int = 6,
     n_points: int = 1024,
     seed: int = 0,
-) -> list[tuple[torch.Tensor, torch.Tensor]]:
-    """Per view count n (with a shape of >= n views): (|error| [P], std [P]) of the linearised, clamped SDF of
-    each shape's views fused n at a time by `rule` (every view alone for n = 1, else `draws` random subsets)."""
+) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
+    """Per view count n (with a shape of >= n views): (|error| [P], variance [P], mean [P]) of the linearised,
+    clamped SDF of each shape's views fused n at a time by `rule` (every view alone for n = 1, else `draws`
+    random subsets)."""
     groups = []
     for n in view_counts:
         generator = torch.Generator().manual_seed(seed + n)
-        errors, stds = [], []
+        parts = []
         for shape_id in dict.fromkeys(shape_ids):
             rows = [i for i, s in enumerate(shape_ids) if s == shape_id]
             if len(rows) < n:
                 continue
             subsets = view_subsets(len(rows), n, draws, generator)
             fused = rule(mu[rows][subsets], var[rows][subsets])
-            e, s = clamped_sdf_errors(predictor.decoder, fused.mu, fused.var, *sdf_points(world, shape_id, n_points))
-            errors.append(e.reshape(-1)), stds.append(s.reshape(-1))
-        if errors:
-            groups.append((torch.cat(errors), torch.cat(stds)))
+            points = sdf_points(world, shape_id, n_points)
+            parts.append(
+                [t.reshape(-1) for t in clamped_sdf_predictions(predictor.decoder, fused.mu, fused.var, *points)]
+            )
+        if parts:
+            groups.append(tuple(torch.cat(t) for t in zip(*parts)))
     return groups
 
 
@@ -151,21 +158,22 @@ def shared_sdf_record(
     code: torch.Tensor,  # [N, D] each render's shape's own code
     shape_ids: list[str],
 ) -> dict[str, Any]:
-    """The shared rule's fit with its own SDF variance, T var + floor^2: T is the factor whose worst calibration
-    error over the val views (var T-scaled) fused 1, 3 and 10 at a time is least, and the floor the decoder's own
-    misfit on the val shapes (`decoder_misfit`, measured, not fitted), kept where it lowers that worst error (a
-    decoder far from its shapes can have a misfit larger than the fused codes' errors)."""
+    """The shared rule's fit with its own SDF variance, T var + floor^2 + (b |clamp(mean)|)^2: T and b are fitted
+    to the worst calibration error over the val views (var T-scaled) fused 1, 3 and 10 at a time, on all samples
+    and near the predicted surface (`fit_sdf_distance_calibration`), and the floor is the decoder's own misfit on
+    the val shapes (`decoder_misfit`, measured, not fitted), kept where it lowers that worst error (a decoder
+    far from its shapes can have a misfit larger than the fused codes' errors)."""
     rule = SharedErrorFusion(fit.shared_var, fit.view_scale)
     groups = fused_sdf_errors(predictor, world, rule, mu, var, shape_ids)
     counts = [n for n in SHARED_SDF_VIEW_COUNTS if n <= max(shape_ids.count(s) for s in set(shape_ids))]
     misfit = decoder_misfit(predictor, world, code, shape_ids)
-    sdf_temperature, before, after = fit_calibration_temperature_across(groups)
-    floored, _, after_floored = fit_calibration_temperature_across(groups, floor=misfit)
-    floor = misfit if max(after_floored) < max(after) else None
-    if floor is not None:
-        sdf_temperature, after = floored, after_floored
-    record = replace(fit, sdf_temperature=sdf_temperature, sdf_floor=floor).to_record()
-    record.update(sdf_view_counts=counts, sdf_calibration_before=before, sdf_calibration_after=after)
+    bare, floored = fit_sdf_distance_calibration(groups), fit_sdf_distance_calibration(groups, floor=misfit)
+    floor = misfit if floored.worst < bare.worst else None
+    chosen = bare if floor is None else floored
+    distance = chosen.distance_scale or None
+    record = replace(fit, sdf_temperature=chosen.temperature, sdf_floor=floor, sdf_distance_scale=distance).to_record()
+    record.update(sdf_view_counts=counts, sdf_calibration_before=chosen.before, sdf_calibration_after=chosen.after)
+    record["sdf_calibration_worst"] = chosen.worst
     record["sdf_decoder_misfit"] = misfit
     return record
 
