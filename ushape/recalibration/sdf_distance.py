@@ -3,9 +3,9 @@
 The linearised SDF variance of a fused code is about as large near its predicted surface as far from it, but
 its error is not: measured on the quickstart runs' val and test shapes (docs/fusion_calibration.md), the rms
 error grows from 0.025 at the predicted surface to 0.06 at 0.07-0.1 from it, while the propagated std stays
-near 0.03-0.04 (the decoder was trained on SDF clamped at 0.1, so it flattens toward the clamp, and its latent
-gradient with it). One factor on the variance cannot then be right at both ends. The model here adds a term in
-the clamped mean's distance from the surface:
+near 0.03-0.04 (a likely cause, not probed: the decoder was trained on SDF clamped at 0.1, so it flattens
+toward the clamp, and its latent gradient with it). One factor on the variance cannot then be right at both
+ends. The model here adds a term in the clamped mean's distance from the surface:
 
     std^2 = T var + floor^2 + (b |clamp(mean)|)^2
 
