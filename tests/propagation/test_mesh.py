@@ -52,3 +52,23 @@ def test_decode_field_matches_direct_decoding(small_decoder):
         direct = small_decoder(torch.tensor([1.0, -1 / 3, 1 / 3]), z)
     assert field.shape == (4, 4, 4)
     assert field[3, 1, 2].item() == pytest.approx(direct.item(), abs=1e-6)
+
+
+def test_clamped_sdf_errors_apply_factor_floor_and_distance_term_on_a_linear_decoder(linear_decoder):
+    from ushape.propagation import SDF_CLAMP, clamped_sdf_errors, clamped_sdf_predictions
+
+    mu, var = torch.zeros(1, 6, dtype=torch.float64), torch.full((1, 6), 0.01, dtype=torch.float64)
+    with torch.no_grad():  # points whose mean SDF is -0.05, 0.02 and (beyond the clamp) 0.4
+        a = linear_decoder.a
+        points = torch.stack([t * a / a.square().sum() for t in (-0.35, -0.28, 0.1)])
+        exact_var = float((linear_decoder.w**2 * 0.01).sum())
+    truth = torch.tensor([0.0, 0.0, 0.5], dtype=torch.float64)
+    error, variance, mean = clamped_sdf_predictions(linear_decoder, mu, var, points, truth)
+    assert torch.allclose(mean[0], torch.tensor([-0.05, 0.02, SDF_CLAMP], dtype=torch.float64))
+    assert torch.allclose(error[0], torch.tensor([0.05, 0.02, 0.0], dtype=torch.float64))  # both clamped at 0.1
+    assert torch.allclose(variance[0], torch.tensor([exact_var, exact_var, 0.0], dtype=torch.float64))
+    _, std = clamped_sdf_errors(linear_decoder, mu, var, points, truth, 0.5, 0.01, 0.6)
+    expected = (0.5 * variance[0] + 0.01**2 + (0.6 * mean[0]) ** 2).sqrt()  # T var + floor^2 + (b |mean|)^2
+    assert torch.allclose(std[0], expected)
+    _, plain = clamped_sdf_errors(linear_decoder, mu, var, points, truth)
+    assert torch.allclose(plain[0], variance[0].sqrt())  # no calibration given: the propagated std itself
