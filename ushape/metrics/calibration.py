@@ -50,13 +50,23 @@ def calibration_curve(
         raise ValueError("abs_error must be >= 0: pass |x - mu|, not the signed error")
     if (sigma < 0).any():
         raise ValueError("sigma must be >= 0 (a standard deviation, not a variance or log-variance)")
+    p = probability_levels(n_levels)
+    return p, interval_coverage(abs_error, sigma, p)
+
+
+def interval_coverage(
+    abs_error: Tensor,  # [N] float64, checked as calibration_curve checks it
+    sigma: Tensor,  # [N] float64
+    p: Tensor,  # [T] probability levels
+) -> Tensor:
+    """Fraction [T] of |error| <= Q(p_t) sigma, without calibration_curve's checks: for a fit that scores many
+    variances of inputs it has checked once."""
     # Standardised error: the fraction inside Q(p) sigma is then one sorted search per level.
     # sigma = 0 is a point prediction: inside every interval if exact, outside all otherwise.
     ratio = torch.where(sigma > 0, abs_error / sigma.clamp(min=torch.finfo(torch.float64).tiny), torch.inf)
     ratio = torch.where((sigma == 0) & (abs_error == 0), 0.0, ratio)
-    p = probability_levels(n_levels)
     inside = torch.searchsorted(torch.sort(ratio).values, two_sided_quantile(p), right=True)
-    return p, inside.double() / ratio.numel()
+    return inside.double() / ratio.numel()
 
 
 def calibration_error(p: Tensor, freq: Tensor) -> float:

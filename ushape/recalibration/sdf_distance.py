@@ -23,7 +23,7 @@ from typing import NamedTuple, Sequence
 import torch
 from torch import Tensor
 
-from ushape.metrics.calibration import probability_levels, two_sided_quantile
+from ushape.metrics.calibration import interval_coverage, probability_levels
 from ushape.recalibration.temperature import CALIBRATION_GRID
 
 # b tried: 0 (no distance term) and 0.05 * 2^(k/4) up to 1.6; T: every second factor of CALIBRATION_GRID.
@@ -83,14 +83,9 @@ def fit_sdf_distance_calibration(
         checked.append((abs_error, var, mean, mean.abs() < band))
 
     levels = probability_levels(n_levels)
-    quantiles = two_sided_quantile(levels)
 
-    def ce(e: Tensor, variance: Tensor) -> float:  # `calibration_curve`'s error, its checks done once above
-        std = variance.sqrt()
-        ratio = torch.where(std > 0, e / std.clamp(min=torch.finfo(torch.float64).tiny), torch.inf)
-        ratio = torch.where((std == 0) & (e == 0), 0.0, ratio)
-        inside = torch.searchsorted(torch.sort(ratio).values, quantiles, right=True)
-        return float((inside.double() / ratio.numel() - levels).abs().mean())
+    def ce(e: Tensor, variance: Tensor) -> float:  # `calibration_error` of the curve, its checks done once above
+        return float((interval_coverage(e, variance.sqrt(), levels) - levels).abs().mean())
 
     def errors(t: float, b: float, f: float = floor) -> list[float]:
         return [ce(e, distance_variance(v, m, t, f, b)) for e, v, m, _ in checked]
