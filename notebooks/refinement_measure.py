@@ -8,7 +8,8 @@ it, else Bayes. Per shape and views fused (1, 3, 10; views spread around the orb
 depth): IoU / Chamfer (Pix3D protocol, 64^3 mesh) of the fused and refined codes and of the shape's own
 code (the ceiling); the latent error, its |error| and the posterior's marginal std per dimension (for the
 calibration error), and J^T W J. From 1 view: median vertex std hidden / visible. From views {0} to
-{0, 6}: how much more the std shrinks on the vertices the added view sees than elsewhere. The
+{0, 6}: how much more the std shrinks on the vertices the added view sees than elsewhere (and on those only it
+sees than on those neither sees). The
 information scale s is fitted on the first N val shapes and applied to the test shapes' covariances.
 """
 
@@ -126,18 +127,20 @@ def shape_rows(args, predictor, fusion, world, codes, shape_id, with_vertices):
             if with_vertices and n == 1:
                 std = vertex_std(decoder, post.mu, post.cov, mesh.vertices)
                 s.update(hidden_over_visible(mesh, std, views[0].world_to_cam))
-                s["shrink_seen_over_unseen"] = shrink_ratio(args, decoder, fusion, mu, var, world, shape_id, mode)
+                s["shrink_seen_over_unseen"], s["shrink_new_over_neither"] = shrink_ratio(
+                    args, decoder, fusion, mu, var, world, shape_id, mode
+                )
                 s["cut_over_full"] = cut_away_std(args, predictor, fusion, world, shape_id, mode, post, truth)
                 fit = args.stored.get(mode)
                 if fit and fit.get("seen"):  # the same three with the stored fit's seen / unseen floors
                     std = calibrated_std(decoder, post, fused.var, mesh.vertices, mesh, views, fit)
+                    shrink, new = shrink_ratio(args, decoder, fusion, mu, var, world, shape_id, mode, fit)
                     s["fitted"] = {
                         "std_hidden_over_visible": hidden_over_visible(mesh, std, views[0].world_to_cam)[
                             "std_hidden_over_visible"
                         ],
-                        "shrink_seen_over_unseen": shrink_ratio(
-                            args, decoder, fusion, mu, var, world, shape_id, mode, fit
-                        ),
+                        "shrink_seen_over_unseen": shrink,
+                        "shrink_new_over_neither": new,
                         "cut_over_full": cut_away_std(
                             args, predictor, fusion, world, shape_id, mode, post, truth, fit=fit, full_var=fused.var
                         ),
@@ -167,8 +170,9 @@ def sdf_rows(decoder, code, points, sdf_true):
 
 
 def shrink_ratio(args, decoder, fusion, mu, var, world, shape_id, mode, fit=None):
-    """Median std shrink, views {0} -> {0, 6}, on vertices view 6 sees over the others (mesh of the 2-view MAP);
-    fit: a stored refinement calibration whose seen / unseen floors the std takes (None: the posterior's own)."""
+    """Median std shrink, views {0} -> {0, 6} (mesh of the 2-view MAP): on the vertices view 6 sees over the others,
+    and on those view 6 sees and view 0 did not over those neither sees; fit: a stored refinement calibration
+    whose seen / unseen floors the std takes (None: the posterior's own)."""
     settings = RefineSettings(
         mode=mode, tolerance=args.tolerance, observation=ObservationSettings(size=args.size, grid=args.grid)
     )
@@ -186,9 +190,9 @@ def shrink_ratio(args, decoder, fusion, mu, var, world, shape_id, mode, fit=None
             calibrated_std(decoder, replace(p, mu=posts[1].mu), v, mesh.vertices, mesh, views, fit)
             for p, v, views in zip(posts, priors, seen_by)
         )
-    seen = visible_vertices(mesh, camera_centre(world_views(world.views_path(shape_id), [6])[0].world_to_cam))
+    seen6, seen0 = (visible_vertices(mesh, camera_centre(views[-1].world_to_cam)) for views in (seen_by[1], seen_by[0]))
     shrink = before / np.maximum(after, 1e-12)
-    return median_ratio(shrink, seen, ~seen)
+    return median_ratio(shrink, seen6, ~seen6), median_ratio(shrink, seen6 & ~seen0, ~seen6 & ~seen0)
 
 
 def calibration(rows, key, scale=None):
@@ -341,10 +345,21 @@ def summarise(path, misfit=None, stored=None):
                     [r[mode]["std_hidden_over_visible"] for r in sel]
                 )
                 line["shrink seen/unseen (median)"] = np.median([r[mode]["shrink_seen_over_unseen"] for r in sel])
+                line["shrink newly seen/neither (median)"] = np.median(
+                    [r[mode]["shrink_new_over_neither"] for r in sel if r[mode].get("shrink_new_over_neither")]
+                )
                 line["cut-away std crop/full (median)"] = np.median([r[mode]["cut_over_full"] for r in sel])
                 fitted = [r[mode]["fitted"] for r in sel if "fitted" in r[mode]]
-                for name in ("std_hidden_over_visible", "shrink_seen_over_unseen", "cut_over_full") if fitted else ():
-                    line[f"{name}, seen floors (median)"] = np.median([f[name] for f in fitted if f[name] is not None])
+                names = (
+                    "std_hidden_over_visible",
+                    "shrink_seen_over_unseen",
+                    "shrink_new_over_neither",
+                    "cut_over_full",
+                )
+                for name in names if fitted else ():
+                    line[f"{name}, seen floors (median)"] = np.median(
+                        [f[name] for f in fitted if f.get(name) is not None]
+                    )
             print({k: round(v, 3) if isinstance(v, float) else v for k, v in line.items()})
 
 
