@@ -132,7 +132,7 @@ def shape_rows(args, predictor, fusion, world, codes, shape_id, with_vertices):
                 )
                 s["cut_over_full"] = cut_away_std(args, predictor, fusion, world, shape_id, mode, post, truth)
                 fit = args.stored.get(mode)
-                if fit and fit.get("seen"):  # the same three with the stored fit's seen / unseen floors
+                if fit and fit.get("seen"):  # the same ratios with the stored fit's seen / unseen floors
                     std = calibrated_std(decoder, post, fused.var, mesh.vertices, mesh, views, fit)
                     shrink, new = shrink_ratio(args, decoder, fusion, mu, var, world, shape_id, mode, fit)
                     s["fitted"] = {
