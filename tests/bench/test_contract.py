@@ -131,3 +131,16 @@ def test_same_mesh_allows_fp32_rounding_only_and_open_meshes_get_no_iou():
     assert np.isnan(mesh_iou(sheet, sheet, 16))  # an open surface encloses nothing: no IoU to give
     nan = Contract(chamfer=0.0, iou=float("nan"), vertex_std=0.0, depth_std=None, eval_iou=0.0)
     assert not nan.met()  # an IoU that cannot be measured does not meet the contract
+
+
+def test_mesh_iou_turns_only_empty_occupancies_into_nan(monkeypatch):
+    import trimesh
+
+    import ushape.bench.contract as module
+
+    def broken(*args):
+        raise ValueError("occupancy shapes differ")  # any other failure of the IoU is a bug to see, not a NaN
+
+    monkeypatch.setattr(module, "volumetric_iou", broken)
+    with pytest.raises(ValueError, match="shapes differ"):
+        mesh_iou(trimesh.creation.box(), trimesh.creation.box(), 8)

@@ -5,6 +5,7 @@ import pytest
 import trimesh
 
 from ushape.metrics.reconstruction import (
+    EmptyOccupancyError,
     chamfer_deepsdf,
     iou_from_occupancy,
     mesh_inside_fn,
@@ -26,7 +27,7 @@ def test_iou_from_occupancy_counts():
     b = np.array([0, 1, 1, 0], bool)
     assert iou_from_occupancy(a, b) == pytest.approx(1 / 3)
     assert iou_from_occupancy(a, a) == 1.0
-    with pytest.raises(ValueError, match="empty"):
+    with pytest.raises(EmptyOccupancyError, match="empty"):  # a ValueError too, for callers that catch those
         iou_from_occupancy(np.zeros(3, bool), np.zeros(3, bool))
     with pytest.raises(ValueError, match="shapes differ"):
         iou_from_occupancy(np.zeros(3, bool), np.zeros(4, bool))

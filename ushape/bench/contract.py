@@ -28,7 +28,7 @@ from ushape.bench.timing import Measurement, interleaved
 from ushape.evaluation.code_metrics import grid_inside_fn
 from ushape.mesh.extraction import marching_cubes
 from ushape.metrics.pix3d import PIX3D_VOXELS, box_frame, voxel_iou, voxelise
-from ushape.metrics.reconstruction import chamfer_deepsdf, mesh_inside_fn, volumetric_iou
+from ushape.metrics.reconstruction import EmptyOccupancyError, chamfer_deepsdf, mesh_inside_fn, volumetric_iou
 from ushape.propagation.depth_implicit import depth_uncertainty_implicit_views
 from ushape.propagation.field import surface_field
 from ushape.propagation.mesh import vertex_uncertainty
@@ -110,7 +110,7 @@ def mesh_iou(reference, mesh, resolution: int = 64) -> float:
     encloses any grid point, e.g. two open meshes whose ray-parity inside tests are empty."""
     try:
         return volumetric_iou(mesh_inside_fn(reference), mesh_inside_fn(mesh), resolution)
-    except ValueError:
+    except EmptyOccupancyError:
         return float("nan")
 
 

@@ -36,6 +36,10 @@ def chamfer_deepsdf(
     return float(np.mean(gt_to_pred**2) + np.mean(pred_to_gt**2))
 
 
+class EmptyOccupancyError(ValueError):
+    """Neither shape occupies any voxel, so their IoU is undefined (a caller may read it as "no IoU", e.g. NaN)."""
+
+
 def iou_from_occupancy(a: np.ndarray, b: np.ndarray) -> float:
     """Intersection over union of two boolean occupancy arrays of the same shape."""
     a, b = np.asarray(a, dtype=bool), np.asarray(b, dtype=bool)
@@ -43,7 +47,7 @@ def iou_from_occupancy(a: np.ndarray, b: np.ndarray) -> float:
         raise ValueError(f"occupancy shapes differ: {a.shape} vs {b.shape}")
     union = np.logical_or(a, b).sum()
     if union == 0:
-        raise ValueError("both occupancies are empty, so IoU is undefined")
+        raise EmptyOccupancyError("both occupancies are empty, so IoU is undefined")
     return float(np.logical_and(a, b).sum() / union)
 
 
