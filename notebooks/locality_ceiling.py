@@ -5,9 +5,10 @@ information scaled by c, up to noise-free views.
     PYTHONPATH=. python notebooks/locality_ceiling.py RUN OUT.jsonl --summary
 
 Per test shape and mode (masks, depth): the code refined on views 0 and 6 (the calibrated prior, as
-`refinement_measure.py`'s shrink), its mesh, the vertices' dSDF/dz G [V, D] at that code, and each view's
-J^T W J there. For c in SCALES the posteriors after view 0 and after views 0 and 6 are
-(P + c sum J^T W J)^-1 (P: the fused prior's precision of those views), and on that one mesh:
+`refinement_measure.py`'s shrink; `--added farthest`: view 0 and the camera farthest from it, in place of 6),
+its mesh, the vertices' dSDF/dz G [V, D] at that code, and each view's J^T W J there. For c in SCALES the
+posteriors after view 0 and after both views are (P + c sum J^T W J)^-1 (P: the fused prior's precision of
+those views), and on that one mesh:
 - hidden / visible: median vertex std, hidden from view 0 over visible from it, after view 0;
 - shrink: median std shrink from {0} to {0, 6}, on the vertices view 6 sees over the others;
 - new / neither: the same shrink on the vertices view 6 sees and view 0 did not, over those neither sees.
@@ -73,13 +74,24 @@ def fitted_std(G, cov, mesh, views, fit):
     return seen_floor_variance(var, seen, fit["sdf_temperature"], fit["floor_seen"], fit["floor_unseen"]).sqrt().numpy()
 
 
-def shape_row(predictor, fusion, world, shape_id, mode, size, fit=None):
+def added_view(views_npz, added: str) -> int:
+    """The view added to view 0: an index, or "farthest" (the camera at the largest angle from view 0's, seen
+    from the shape's centre)."""
+    if added != "farthest":
+        return int(added)
+    centres = np.stack([camera_centre(v.world_to_cam) for v in world_views(views_npz, with_depth=False)])
+    unit = centres / np.linalg.norm(centres, axis=1, keepdims=True)
+    return int(1 + np.argmin(unit[1:] @ unit[0]))
+
+
+def shape_row(predictor, fusion, world, shape_id, mode, size, fit=None, added="6"):
     decoder = predictor.decoder
     images, _, _ = predictor.load_images(view_files(world.root, shape_id))
     mu, var = predictor.encode(images)
     settings = RefineSettings(mode=mode, observation=ObservationSettings(size=size))
-    one, two = fusion(mu[[0]], var[[0]]), fusion(mu[[0, 6]], var[[0, 6]])
-    v0, v6 = (world_views(world.views_path(shape_id), [i]) for i in (0, 6))
+    a = added_view(world.views_path(shape_id), added)
+    one, two = fusion(mu[[0]], var[[0]]), fusion(mu[[0, a]], var[[0, a]])
+    v0, v6 = (world_views(world.views_path(shape_id), [i]) for i in (0, a))
     z = refine(decoder, two.mu, two.var, v0 + v6, settings).mu
     with frozen(decoder):
         mesh, _ = extract_mesh(code_sdf_fn(decoder, z), 64)
@@ -95,6 +107,7 @@ def shape_row(predictor, fusion, world, shape_id, mode, size, fit=None):
     row = {
         "shape": shape_id,
         "mode": mode,
+        "added": a,
         "seen6_also_seen0": float((seen0 & seen6).sum() / max(seen6.sum(), 1)),
         "newly_seen": float((seen6 & ~seen0).mean()),
         "pinned_directions": int((pinned > 1).sum()),
@@ -145,6 +158,11 @@ def main():
     parser.add_argument("--test", type=int, default=6, help="first N test shapes")
     parser.add_argument("--size", type=int, default=32, help="rays per image side")
     parser.add_argument("--calibration", help="a refinement_calibration.json: the ratios also with its seen model")
+    parser.add_argument(
+        "--added",
+        default="6",
+        help='the view added to view 0: an index, or "farthest" (the camera farthest from view 0)',
+    )
     parser.add_argument("--summary", action="store_true", help="print the medians of OUT.jsonl and stop")
     args = parser.parse_args()
     if args.summary:
@@ -161,7 +179,7 @@ def main():
         for mode in ("masks", "depth"):
             if (shape_id, mode) in done:
                 continue
-            row = shape_row(predictor, fusion, world, shape_id, mode, args.size, stored.get(mode))
+            row = shape_row(predictor, fusion, world, shape_id, mode, args.size, stored.get(mode), args.added)
             with open(args.out, "a") as f:
                 f.write(json.dumps(row) + "\n")
             print(shape_id, mode, {c: v["shrink"] for c, v in row["scales"].items()}, flush=True)
