@@ -34,28 +34,27 @@ from ushape.decoder.query import code_sdf_fn, frozen
 from ushape.encoder.datamodule import view_files
 from ushape.mesh.extraction import extract_mesh
 from ushape.mesh.visibility import median_ratio
-from ushape.propagation.linearised import latent_jacobian
+from ushape.propagation.linearised import latent_jacobian, latent_variance
 from ushape.recalibration.refine_information import seen_floor_variance
 from ushape.reconstruction.calibrated_fusion import default_fusion
 from ushape.reconstruction.predictor import load_predictor
 from ushape.reconstruction.visibility import seen_by_views, visible_vertices
 from ushape.refinement import ObservationSettings, RefineSettings, refine, world_views
 from ushape.refinement.observation import residuals
-from ushape.refinement.posterior import prior_precision, row_weights
+from ushape.refinement.posterior import information_matrix, prior_precision, row_weights
 
 SCALES = (0.1, 1.0, 10.0, 100.0, 1e6)
 LEADING = (1, 2, 3, 5, 10, 20)
 
 
 def vertex_std(G, cov):  # G [V, D], cov [D, D] -> [V]
-    return ((G @ cov) * G).sum(-1).clamp_min(0).sqrt().numpy()
+    return latent_variance(G, cov).sqrt().numpy()
 
 
 def information(decoder, z, views, settings):
     """J^T W J [D, D] of `views` at code z."""
     res = residuals(decoder, z.float(), views, settings.observation, settings.mode == "depth")
-    J = res.J.double()
-    return J.T @ (row_weights(res, settings)[:, None] * J)
+    return information_matrix(res, row_weights(res, settings))
 
 
 def ratios(before, after, seen0, seen6):  # vertex std [V] after view 0 and after views 0 and 6

@@ -28,7 +28,7 @@ from ushape.planning.criteria import unseen_uncertain_surface
 from ushape.propagation.linearised import latent_jacobian
 from ushape.propagation.sphere_tracing import sphere_trace
 from ushape.refinement.observation import ObservationSettings, code_functions, residuals, view_rays
-from ushape.refinement.posterior import RefineSettings, row_weights
+from ushape.refinement.posterior import RefineSettings, information_matrix, row_weights
 from ushape.refinement.views import ObservedView
 
 PREDICTS = ("masks", "depth")
@@ -114,8 +114,7 @@ def candidate_information(
     with_depth = settings.mode == "depth"
     view = predicted_view(decoder, z, K, world_to_cam, image_hw, settings.observation, with_depth)
     res = residuals(decoder, z.detach().float(), [view], settings.observation, with_depth)
-    J = res.J.double()
-    return settings.information_scale * (J.T @ (row_weights(res, settings)[:, None] * J))
+    return settings.information_scale * information_matrix(res, row_weights(res, settings))
 
 
 class InformationGain:

@@ -139,6 +139,12 @@ def row_weights(res: Residuals, settings: RefineSettings) -> Tensor:
     return torch.where(sdf_rows, w * huber, w)
 
 
+def information_matrix(res: Residuals, w: Tensor) -> Tensor:  # [D, D] float64
+    """J^T W J of residuals `res` (their Jacobian filled in) under row weights w [R] (`row_weights`)."""
+    J = res.J.double()
+    return J.T @ (w[:, None] * J)
+
+
 def energy(z: Tensor, mu: Tensor, precision: Tensor, res: Residuals, w: Tensor) -> float:
     dz = (z - mu).double()
     return float(0.5 * dz @ precision @ dz + 0.5 * (w * res.r.double().square()).sum())
@@ -281,12 +287,12 @@ def laplace(
     known: dict[str, Any],
 ) -> Posterior:
     """N(z, (Sigma^-1 + J^T W J)^-1) at the MAP, or the prior when it is non-finite or diverged."""
-    J = res.J.double()
-    cov = torch.linalg.inv(precision + settings.information_scale * (J.T @ (w[:, None] * J)))
+    information = information_matrix(res, w)
+    cov = torch.linalg.inv(precision + settings.information_scale * information)
     cov = 0.5 * (cov + cov.T)
     distance = float(torch.sqrt((z - mu) @ precision @ (z - mu)))
     rows, rms = summarise(res)
-    known = dict(known, rows=rows, rms=rms, information=J.T @ (w[:, None] * J))
+    known = dict(known, rows=rows, rms=rms, information=information)
     if not (torch.isfinite(z).all() and torch.isfinite(cov).all()):
         return fallback(mu, var, "non-finite code or covariance", **known)
     if distance > settings.max_mahalanobis:
