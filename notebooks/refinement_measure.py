@@ -37,7 +37,7 @@ from ushape.mesh.visibility import median_ratio
 from ushape.metrics.calibration import calibration_curve, calibration_error
 from ushape.metrics.pix3d import pix3d_metrics, reference_from_mesh
 from ushape.propagation import SDF_CLAMP
-from ushape.propagation.linearised import latent_jacobian
+from ushape.propagation.linearised import latent_jacobian, latent_variance
 from ushape.recalibration.refine_information import (
     fit_information_scale,
     fit_sdf_recalibration,
@@ -70,8 +70,7 @@ def scores(decoder, code, reference):
 
 def vertex_std(decoder, code, cov, vertices):
     _, g = latent_jacobian(decoder, code, torch.as_tensor(np.asarray(vertices), dtype=torch.float32))
-    g = g.double()
-    return ((g @ cov.double()) * g).sum(-1).clamp_min(0).sqrt().numpy()
+    return latent_variance(g.double(), cov.double()).sqrt().numpy()
 
 
 def calibrated_std(decoder, post, prior_var, vertices, mesh, views, fit):
@@ -127,23 +126,23 @@ def shape_rows(args, predictor, fusion, world, codes, shape_id, with_vertices):
             if with_vertices and n == 1:
                 std = vertex_std(decoder, post.mu, post.cov, mesh.vertices)
                 s.update(hidden_over_visible(mesh, std, views[0].world_to_cam))
-                s["shrink_seen_over_unseen"], s["shrink_new_over_neither"] = shrink_ratio(
-                    args, decoder, fusion, mu, var, world, shape_id, mode
-                )
-                s["cut_over_full"] = cut_away_std(args, predictor, fusion, world, shape_id, mode, post, truth)
                 fit = args.stored.get(mode)
-                if fit and fit.get("seen"):  # the same ratios with the stored fit's seen / unseen floors
+                fit = fit if fit and fit.get("seen") else None  # the same ratios with its seen / unseen floors
+                (s["shrink_seen_over_unseen"], s["shrink_new_over_neither"]), fitted_shrink = shrink_ratio(
+                    args, decoder, fusion, mu, var, world, shape_id, mode, fit
+                )
+                s["cut_over_full"], fitted_cut = cut_away_std(
+                    args, predictor, fusion, world, shape_id, mode, post, truth, fit=fit, full_var=fused.var
+                )
+                if fit:
                     std = calibrated_std(decoder, post, fused.var, mesh.vertices, mesh, views, fit)
-                    shrink, new = shrink_ratio(args, decoder, fusion, mu, var, world, shape_id, mode, fit)
                     s["fitted"] = {
                         "std_hidden_over_visible": hidden_over_visible(mesh, std, views[0].world_to_cam)[
                             "std_hidden_over_visible"
                         ],
-                        "shrink_seen_over_unseen": shrink,
-                        "shrink_new_over_neither": new,
-                        "cut_over_full": cut_away_std(
-                            args, predictor, fusion, world, shape_id, mode, post, truth, fit=fit, full_var=fused.var
-                        ),
+                        "shrink_seen_over_unseen": fitted_shrink[0],
+                        "shrink_new_over_neither": fitted_shrink[1],
+                        "cut_over_full": fitted_cut,
                     }
             row[mode] = s
         rows.append(row)
@@ -170,9 +169,9 @@ def sdf_rows(decoder, code, points, sdf_true):
 
 
 def shrink_ratio(args, decoder, fusion, mu, var, world, shape_id, mode, fit=None):
-    """Median std shrink, views {0} -> {0, 6} (mesh of the 2-view MAP): on the vertices view 6 sees over the others,
-    and on those view 6 sees and view 0 did not over those neither sees; fit: a stored refinement calibration
-    whose seen / unseen floors the std takes (None: the posterior's own)."""
+    """Median std shrink, views {0} -> {0, 6} (mesh of the 2-view MAP): (on the vertices view 6 sees over the
+    others, on those view 6 sees and view 0 did not over those neither sees), from the posteriors' own std and,
+    with `fit` (a stored refinement calibration), from the std with its seen / unseen floors (else None)."""
     settings = RefineSettings(
         mode=mode, tolerance=args.tolerance, observation=ObservationSettings(size=args.size, grid=args.grid)
     )
@@ -183,16 +182,22 @@ def shrink_ratio(args, decoder, fusion, mu, var, world, shape_id, mode, fit=None
         posts.append(refine(decoder, fused.mu, fused.var, seen_by[-1], settings))
         priors.append(fused.var)
     mesh, _ = mesh_of(decoder, posts[1].mu)
+    seen6, seen0 = (visible_vertices(mesh, camera_centre(views[-1].world_to_cam)) for views in (seen_by[1], seen_by[0]))
+
+    def ratios(before, after):
+        shrink = before / np.maximum(after, 1e-12)
+        return median_ratio(shrink, seen6, ~seen6), median_ratio(shrink, seen6 & ~seen0, ~seen6 & ~seen0)
+
+    own = ratios(*(vertex_std(decoder, posts[1].mu, p.cov, mesh.vertices) for p in posts))
     if fit is None:
-        before, after = (vertex_std(decoder, posts[1].mu, p.cov, mesh.vertices) for p in posts)
-    else:  # both posteriors' covariances at the 2-view MAP, as without the fit
-        before, after = (
+        return own, None
+    fitted = ratios(  # both posteriors' covariances at the 2-view MAP, as without the fit
+        *(
             calibrated_std(decoder, replace(p, mu=posts[1].mu), v, mesh.vertices, mesh, views, fit)
             for p, v, views in zip(posts, priors, seen_by)
         )
-    seen6, seen0 = (visible_vertices(mesh, camera_centre(views[-1].world_to_cam)) for views in (seen_by[1], seen_by[0]))
-    shrink = before / np.maximum(after, 1e-12)
-    return median_ratio(shrink, seen6, ~seen6), median_ratio(shrink, seen6 & ~seen0, ~seen6 & ~seen0)
+    )
+    return own, fitted
 
 
 def calibration(rows, key, scale=None):
@@ -222,7 +227,7 @@ def sdf_pool(rows, key, scale):
             + scale * torch.tensor(r[key]["information"], dtype=torch.float64)
         )
         g = torch.tensor(r[key]["sdf"]["jacobian"], dtype=torch.float64)
-        stds.append(((g @ cov) * g).sum(-1).clamp_min(0).sqrt())
+        stds.append(latent_variance(g, cov).sqrt())
         errors.append(torch.tensor(r[key]["sdf"]["abs_error"], dtype=torch.float64))
     return torch.cat(errors), torch.cat(stds)
 
@@ -346,7 +351,11 @@ def summarise(path, misfit=None, stored=None):
                 )
                 line["shrink seen/unseen (median)"] = np.median([r[mode]["shrink_seen_over_unseen"] for r in sel])
                 line["shrink newly seen/neither (median)"] = np.median(
-                    [r[mode]["shrink_new_over_neither"] for r in sel if r[mode].get("shrink_new_over_neither")]
+                    [
+                        r[mode]["shrink_new_over_neither"]
+                        for r in sel
+                        if r[mode].get("shrink_new_over_neither") is not None
+                    ]
                 )
                 line["cut-away std crop/full (median)"] = np.median([r[mode]["cut_over_full"] for r in sel])
                 fitted = [r[mode]["fitted"] for r in sel if "fitted" in r[mode]]
@@ -365,7 +374,9 @@ def summarise(path, misfit=None, stored=None):
 
 def cut_away_std(args, predictor, fusion, world, shape_id, mode, full, truth, keep=0.55, fit=None, full_var=None):
     """View 0 cropped to its top `keep` (a photo cut off at the seat): median std, on the own code's mesh
-    vertices that fall in the cut-away part, of the refined posterior from the crop over that from the full view."""
+    vertices that fall in the cut-away part, of the refined posterior from the crop over that from the full view;
+    from the posteriors' own std and, with `fit` (and the full view's prior variance `full_var`), from the std
+    with the fit's seen / unseen floors (else None)."""
     decoder = predictor.decoder
     view = world_views(world.views_path(shape_id), [0])[0]
     h, w = view.image_hw
@@ -376,19 +387,25 @@ def cut_away_std(args, predictor, fusion, world, shape_id, mode, full, truth, ke
     settings = RefineSettings(
         mode=mode, tolerance=args.tolerance, observation=ObservationSettings(size=args.size, grid=args.grid)
     )
-    cut = refine(decoder, fused.mu, fused.var, [crop_view(view, box, (box[2], w))], settings)
+    crop = crop_view(view, box, (box[2], w))
+    cut = refine(decoder, fused.mu, fused.var, [crop], settings)
     mesh, _ = mesh_of(decoder, truth)
     uv, _ = project(np.asarray(mesh.vertices), view.K, view.world_to_cam)
     away = uv[:, 1] >= box[2]
+
+    def ratio(stds):
+        return float(np.median(stds[0][away]) / np.median(stds[1][away])) if away.any() else None
+
+    own = ratio([vertex_std(decoder, p.mu, p.cov, mesh.vertices) for p in (cut, full)])
     if fit is None:
-        stds = [vertex_std(decoder, p.mu, p.cov, mesh.vertices) for p in (cut, full)]
-    else:  # seen decided on the own code's mesh, the one the ratio is read on
-        crop = crop_view(view, box, (box[2], w))
-        stds = [
+        return own, None
+    fitted = ratio(  # seen decided on the own code's mesh, the one the ratio is read on
+        [
             calibrated_std(decoder, p, v, mesh.vertices, mesh, [seen], fit)
             for p, v, seen in ((cut, fused.var, crop), (full, full_var, view))
         ]
-    return float(np.median(stds[0][away]) / np.median(stds[1][away])) if away.any() else None
+    )
+    return own, fitted
 
 
 def main():
