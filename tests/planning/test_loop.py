@@ -11,11 +11,11 @@ import torch
 from eval_world import FakePredictor
 
 from ushape.data.augment import corrupted_view, load_rgba, view_seed
-from ushape.fusion.rules import fuse_bayesian
+from ushape.fusion.rules import FusedCode, fuse_bayesian
 from ushape.planning import ViewEncoder, active_reconstruction, build_strategy, candidate_views
 from ushape.planning.candidates import CandidateViews
 from ushape.planning.loop import PlanState
-from ushape.planning.strategies import LatentOracle
+from ushape.planning.strategies import LatentOracle, occupancy_iou
 
 
 @pytest.fixture()
@@ -92,6 +92,55 @@ def test_the_oracle_takes_the_view_that_brings_the_fused_code_closest_to_the_ans
     assert scores[0] == -np.inf
 
 
+def test_under_a_refining_observer_the_oracle_scores_the_refined_belief_not_the_fused_code():
+    codes = {0: torch.tensor([0.0, 0.0]), 1: torch.tensor([1.0, 0.0]), 2: torch.tensor([0.0, 3.0])}
+    dummy = np.repeat(np.eye(4)[None], 3, axis=0)
+    dummy[:, 2, 3] = 3.0
+    observed = {0: "view 0", 1: "view 1", 2: "view 2"}
+    K = np.repeat(np.eye(3)[None], 3, 0)
+    candidates = CandidateViews("s", K, dummy, np.zeros(3), "recorded", lambda i: None, observed.get)
+    seen = []
+
+    class Refiner:  # a belief that, whatever the fused code, lands on (number of views, 0) once view 2 is in
+        name = "masks"
+
+        def __call__(self, decoder, fused, taken, view_of):
+            seen.append([view_of(i) for i in taken])
+            mu = torch.tensor([float(len(taken)), 0.0]) if 2 in taken else fused.mu + 5.0
+            return FusedCode(mu, fused.var, fused.kept), None
+
+    state = PlanState(
+        candidates, [0], None, None, 8, lambda i: (codes[i], torch.ones(2)), lambda mu, var: fuse_bayesian(mu, var)
+    )
+    scores = LatentOracle(torch.tensor([2.0, 0.0]), Refiner()).scores(state)
+    # Fused, view 1 would win (0.5 from the answer against 1.80); refined, view 2 lands on (2, 0) exactly and
+    # view 1 on (5.5, 5): the oracle takes what the loop would believe, refined on the views taken plus each.
+    np.testing.assert_allclose(scores[1:], [-np.hypot(3.5, 5.0), 0.0])
+    assert seen == [["view 0", "view 1"], ["view 0", "view 2"]]  # each refined on every view, as acquired
+    assert build_strategy("oracle", true_code=torch.zeros(2), observer=Refiner()).observer is not None
+
+
+def test_the_occupancy_oracle_scores_the_shape_so_a_code_direction_the_surface_ignores_costs_nothing():
+    def sphere(xyz, z):  # radius z[0]; z[1] moves no surface
+        return xyz.norm(dim=-1) - z[..., 0]
+
+    codes = {0: torch.tensor([0.5, 0.0]), 1: torch.tensor([0.5, 4.0]), 2: torch.tensor([0.3, 0.0])}
+    dummy = np.repeat(np.eye(4)[None], 3, axis=0)
+    dummy[:, 2, 3] = 3.0
+    candidates = CandidateViews("s", np.repeat(np.eye(3)[None], 3, 0), dummy, np.zeros(3), "recorded", lambda i: None)
+    state = PlanState(
+        candidates, [0], None, sphere, 8, lambda i: (codes[i], torch.ones(2)), lambda mu, var: fuse_bayesian(mu, var)
+    )
+    truth = torch.tensor([0.5, 0.0])
+    latent = LatentOracle(truth).scores(state)
+    assert latent[2] > latent[1]  # fused (0.5, 2) is 2 away, (0.4, 0) only 0.1: the latent oracle takes view 2
+    oracle = build_strategy("oracle-occupancy", true_code=truth, n_points=20000)
+    shape = oracle.scores(state)
+    # View 1's fused code draws the true sphere (IoU 1); view 2's a sphere of radius 0.4: IoU (0.4 / 0.5)^3.
+    assert shape[1] == 0.0 and shape[0] == -np.inf
+    np.testing.assert_allclose(shape[2], -(1 - 0.8**3), atol=0.02)
+
+
 def test_acquired_views_are_cropped_as_the_evaluation_crops_them(setting, sphere_world):
     predictor, candidates, _ = setting
     encode = ViewEncoder(predictor, candidates, min_scale=0.1, seed=2)
@@ -133,3 +182,11 @@ def test_the_loop_plans_with_a_full_covariance(setting):
         if a.scores is not None:
             np.testing.assert_allclose(b.scores, a.scores, rtol=1e-5)
             np.testing.assert_allclose(b.surface.variance, a.surface.variance, rtol=1e-5, atol=1e-12)
+
+
+def test_occupancy_iou_by_hand():
+    a = torch.tensor([True, True, False, False])
+    b = torch.tensor([True, False, True, False])
+    assert occupancy_iou(a, b) == 1 / 3 and occupancy_iou(a, a) == 1.0
+    assert occupancy_iou(torch.zeros(3, dtype=bool), torch.zeros(3, dtype=bool)) == 1.0  # both empty: alike
+    assert occupancy_iou(a, torch.zeros(4, dtype=bool)) == 0.0

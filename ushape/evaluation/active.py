@@ -30,7 +30,7 @@ from ushape.planning.candidates import SOURCES
 from ushape.planning.figures import sequence_figure, step_surfaces
 from ushape.planning.information import INFORMATION_STRATEGIES, SeenInformationGain
 from ushape.planning.observers import OBSERVERS, FusedGaussian, build_observer
-from ushape.planning.strategies import STRATEGIES
+from ushape.planning.strategies import ORACLES, STRATEGIES
 from ushape.reconstruction.calibrated_fusion import refinement_prior
 from ushape.reconstruction.refine_calibration import seen_model
 
@@ -42,7 +42,7 @@ REFERENCE = "random"
 
 def check_active_settings(settings) -> None:
     """A ValueError that names what is wrong with the active_* settings."""
-    known = [*STRATEGIES, "oracle"]
+    known = [*STRATEGIES, *ORACLES]
     unknown = [s for s in settings.active_strategies if s not in known]
     if unknown or settings.active_views < 1 or settings.active_candidates not in SOURCES:
         raise ValueError(
@@ -83,7 +83,7 @@ def observer_for(settings, name: str):
 def sequence(run, settings, candidates, encode, name: str, observer, true_code):
     """One strategy's steps on one shape (from the shared start view), under one observer."""
     options = strategy_options(name, settings.active_refine_size, run.predictor, observer)
-    strategy = build_strategy(name, settings.seed, true_code if name == "oracle" else None, **options)
+    strategy = build_strategy(name, settings.seed, true_code if name in ORACLES else None, **options)
     return active_reconstruction(
         candidates,
         encode,
@@ -109,7 +109,11 @@ def loop_fusion(predictor, observer):
 
 def strategy_options(name: str, size: int, predictor, observer) -> dict:
     """The information strategies' rays per side (`size`); information-seen's floors, the predictor's run's seen
-    model fitted for what the loop observes (masks where it observes nothing)."""
+    model fitted for what the loop observes (masks where it observes nothing); the oracle's refining observer
+    (it scores the belief the loop would refine, not the fused code)."""
+    if name in ORACLES:
+        refining = getattr(observer, "name", FusedGaussian.name) != FusedGaussian.name
+        return {"observer": observer} if refining else {}
     if name not in INFORMATION_STRATEGIES:
         return {}
     options = {"size": size}
@@ -293,10 +297,11 @@ def table_active(records: Sequence[dict], metric: str = "iou") -> Table:
         "(refined rows: the run's calibrated shared rule where fitted, the prior reconstruct.py refines). "
         f"'gain vs random': mean per-shape {name} {'gain' if sign > 0 else 'drop'} against random over views "
         f"2-{n}, +- its standard error over shapes (positive: better than random). 'views to reach': the fewest "
-        f"views whose mean {name} reaches random's at {reach} views. The oracle picks by the true code: a bound, "
-        "not a strategy. 'strategy+masks' / '+depth': the belief after each view is the fused Gaussian refined on "
-        "every view taken (compared with random+masks / +depth). 's / step': mean seconds of a step after the "
-        "first (scoring the candidates, then fusing and refining).",
+        f"views whose mean {name} reaches random's at {reach} views. The oracles look at the answer (oracle: "
+        "the belief's distance from the shape's own code; oracle-occupancy: its shape's): no robot could run them. "
+        "'strategy+masks' / '+depth': the belief after each view is the fused Gaussian refined on every view taken "
+        "(compared with random+masks / +depth). 's / step': mean seconds of a step after the first (scoring the "
+        "candidates, then fusing and refining).",
         ["Encoder", "min scale", "strategy", *[f"{name} {k}" for k in range(1, n + 1)], f"sd {n}", "shapes"]
         + ["gain vs random", "s.e.", f"views to reach random@{reach}", "s / step"],
     )
@@ -335,7 +340,7 @@ def plot_active(records: Sequence[dict]):
                 views = sorted(curve)
                 mean = np.array([np.nanmean(curve[k]) for k in views])
                 se = np.array([standard_error(curve[k]) for k in views])
-                style = {"linestyle": ":"} if method == "oracle" else {}
+                style = {"linestyle": ":"} if method.partition("+")[0] in ORACLES else {}
                 (line,) = ax.plot(views, mean, marker="o", label=f"{encoder} {method}", **style)
                 ax.fill_between(views, mean - se, mean + se, color=line.get_color(), alpha=0.15)
             ax.set(xlabel="views taken", ylabel=name, title=f"{name}, crops of area [{scale:g}, 1]")

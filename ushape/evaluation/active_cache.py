@@ -39,7 +39,7 @@ from ushape.reconstruction.refine_calibration import calibration_path
 log = logging.getLogger(__name__)
 
 CACHE_FOLDER = "active"
-VERSION = 1
+VERSION = 2  # 2: the oracle under a refining observer scores the refined belief, not the fused code
 # The settings a sequence's result depends on (the others choose which sequences run, or other protocols).
 SEQUENCE_SETTINGS = (
     "split",

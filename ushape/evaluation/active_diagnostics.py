@@ -29,7 +29,7 @@ from ushape.encoder.latent_metrics import spearman_correlation
 from ushape.evaluation.tables import Table, encoder_order
 from ushape.fusion.rules import FusedCode, fuse_bayesian
 from ushape.planning import CandidateViews, Step
-from ushape.planning.strategies import distances_with_each
+from ushape.planning.strategies import code_distance, distances_with_each
 from ushape.propagation.linearised import propagate_linearised
 
 
@@ -57,7 +57,7 @@ class RealisedDrops:
         taken = [s.view for s in steps[:k]]
         start = float((before.mu - self.true_code).norm())
         if not hasattr(self.observer, "updated_mean"):
-            distances = distances_with_each(self.encode, fuse_bayesian, taken, n, self.true_code)
+            distances = distances_with_each(self.encode, fuse_bayesian, taken, n, code_distance(self.true_code))
         else:
             belief = FusedCode(before.mu, before.var, torch.arange(k))
             distances = np.full(n, np.inf)

@@ -15,6 +15,7 @@ from ushape.reconstruction.export import colour_range, coloured_mesh
 from ushape.reconstruction.figures import mesh_renders
 
 MESH_AZIMUTH = 30.0
+MESH_PIXELS = 256  # about the panel's own pixels: at 160 a thin leg or slat falls between the rays and vanishes
 
 
 def step_surfaces(
@@ -57,7 +58,7 @@ def sequence_figure(
         surface = surfaces[k]
         if surface is not None:
             std = np.sqrt(np.maximum(surface.variance, 0))
-            render = mesh_renders(coloured_mesh(surface.mesh, std, top), size=160, azimuths=(MESH_AZIMUTH,))[0]
+            render = mesh_renders(coloured_mesh(surface.mesh, std, top), size=MESH_PIXELS, azimuths=(MESH_AZIMUTH,))[0]
             axes[1, k].imshow(render)
             axes[1, k].set_title(f"median std {np.median(std):.3g}", fontsize=8)
         else:

@@ -11,19 +11,25 @@
 - information-seen: information-surface on the variance the refined mesh is drawn with under the run's fitted
   seen model (a floor where a view saw the surface, a larger one where none did), so a candidate also gains
   for the unseen surface it would show (`reconstruct.py --fit-refinement` fits the floors).
-- oracle: the candidate whose image brings the fused code closest to the shape's own code. It looks at
-  every candidate's image and at the answer, so it is no strategy a robot could run: it bounds how much
-  any choice of views can give with this encoder.
+- oracle: the candidate whose image brings the loop's belief closest to the shape's own code: the fused code,
+  or, under a refining observer, the belief refined on the views taken plus that candidate (exactly what the
+  loop's next step would believe). It looks at every candidate's image and at the answer, so it is no
+  strategy a robot could run: the greedy choice by the latent distance.
+- oracle-occupancy: the same, by the shape: the belief's occupancy against the own code's at fixed points
+  (1 - IoU). What a greedy choice of views can give where the score is the shape, not the code.
 """
 
 from __future__ import annotations
 
 import zlib
+from typing import Callable
 
 import numpy as np
 import torch
 from torch import Tensor
 
+from ushape.decoder.query import decode_points
+from ushape.fusion.rules import FusedCode
 from ushape.planning.criteria import angular_gap, uncertain_surface, unseen_uncertain_surface
 from ushape.planning.information import (
     INFORMATION_STRATEGIES,
@@ -32,6 +38,8 @@ from ushape.planning.information import (
     SurfaceInformationGain,
 )
 from ushape.planning.loop import Encode, Fusion, PlanState
+
+Belief = Callable[[FusedCode, list[int]], FusedCode]  # (the fused Gaussian of views, those views) -> the belief
 
 
 class FarthestView:
@@ -81,30 +89,88 @@ class UnseenUncertainSurface:
 
 
 def distances_with_each(
-    encode: Encode, fusion: Fusion, taken: list[int], n_candidates: int, true_code: Tensor
+    encode: Encode,
+    fusion: Fusion,
+    taken: list[int],
+    n_candidates: int,
+    distance: Callable[[FusedCode], float],
+    belief: Belief | None = None,
 ) -> np.ndarray:  # [C]
-    """Distance from the fused code of the views taken plus candidate c to true_code, per candidate (inf where
-    taken). It encodes every open candidate: only the oracle and the evaluation's diagnostics look this far."""
+    """`distance` of the belief of the views taken plus candidate c, per candidate (inf where taken): of their
+    fused code, or of `belief` of it (a refinement on those views). It encodes every open candidate: only the
+    oracles and the evaluation's diagnostics look this far."""
     encoded = [encode(i) for i in taken]
     distances = np.full(n_candidates, np.inf)
     for c in range(n_candidates):
         if c in taken:
             continue
         mu, var = zip(*encoded, encode(c))
-        distances[c] = float((fusion(torch.stack(mu), torch.stack(var)).mu - true_code).norm())
+        code = fusion(torch.stack(mu), torch.stack(var))
+        if belief is not None:
+            code = belief(code, [*taken, c])
+        distances[c] = distance(code)
     return distances
 
 
+def code_distance(true_code: Tensor) -> Callable[[FusedCode], float]:
+    """A belief -> the Euclidean distance of its mean from the shape's own code."""
+    return lambda code: float((code.mu.float() - true_code).norm())
+
+
 class LatentOracle:
-    """Minus the distance from the fused code (views taken plus the candidate) to the shape's own code."""
+    """Minus the distance to the shape's own code of the belief after the views taken plus the candidate: their
+    fused code, or with a refining `observer` (ushape.planning.observers) that code refined on those views, as
+    the loop would refine it. Refined, it costs one refinement per open candidate."""
 
     name = "oracle"
 
-    def __init__(self, true_code: Tensor) -> None:
-        self.true_code = true_code.float()
+    def __init__(self, true_code: Tensor, observer=None) -> None:
+        self.true_code, self.observer = true_code.float(), observer
+
+    def distance(self, state: PlanState) -> Callable[[FusedCode], float]:
+        return code_distance(self.true_code)
 
     def scores(self, state: PlanState) -> np.ndarray:
-        return -distances_with_each(state.encode, state.fusion, state.taken, len(state.candidates), self.true_code)
+        belief = None
+        if self.observer is not None:
+            view_of = getattr(state.encode, "observed", state.candidates.observed)
+
+            def belief(fused: FusedCode, views: list[int]) -> FusedCode:
+                return self.observer(state.decoder, fused, views, view_of)[0]
+
+        n = len(state.candidates)
+        return -distances_with_each(state.encode, state.fusion, state.taken, n, self.distance(state), belief)
+
+
+def occupancy_iou(
+    inside: Tensor,  # [P] bool
+    reference: Tensor,  # [P] bool
+) -> float:
+    """|inside & reference| / |inside | reference| (1 where both are empty)."""
+    union = int((inside | reference).sum())
+    return 1.0 if union == 0 else int((inside & reference).sum()) / union
+
+
+class OccupancyOracle(LatentOracle):
+    """`LatentOracle` in shape space: 1 - the IoU, at fixed points uniform in [-1, 1]^3, of the belief's occupancy
+    (SDF < 0) with that of the shape's own code. The latent distance weighs every code direction alike, also the
+    many the surface barely moves; this one counts only what changes the shape, as the evaluation's IoU does.
+    (The shape's own code, not the ground truth: the decoder's best, which a choice of views can approach.)"""
+
+    name = "oracle-occupancy"
+
+    def __init__(self, true_code: Tensor, observer=None, n_points: int = 16384, seed: int = 0) -> None:
+        super().__init__(true_code, observer)
+        generator = torch.Generator().manual_seed(seed)
+        self.points = torch.rand(n_points, 3, generator=generator) * 2.0 - 1.0  # [P, 3]
+        self._reference: tuple[object, Tensor] | None = None
+
+    def distance(self, state: PlanState) -> Callable[[FusedCode], float]:
+        decoder = state.decoder
+        if self._reference is None or self._reference[0] is not decoder:
+            self._reference = (decoder, decode_points(decoder, self.true_code, self.points) < 0)
+        reference = self._reference[1]
+        return lambda code: 1.0 - occupancy_iou(decode_points(decoder, code.mu.float(), self.points) < 0, reference)
 
 
 STRATEGIES = {
@@ -118,18 +184,20 @@ STRATEGIES = {
         SurfaceInformationGain,
         SeenInformationGain,
     )
-}  # what a robot can run; the oracle needs the answer
+}  # what a robot can run; an oracle needs the answer
+ORACLES = {s.name: s for s in (LatentOracle, OccupancyOracle)}
 
 
 def build_strategy(name: str, seed: int = 0, true_code: Tensor | None = None, **options):
-    """A strategy by name (one of STRATEGIES, or "oracle" given the shape's own code); options go to the
-    information strategies (their rays per side `size`, the residuals' stds)."""
-    if name == LatentOracle.name:
+    """A strategy by name (one of STRATEGIES, or one of ORACLES given the shape's own code); options go to the
+    information strategies (their rays per side `size`, the residuals' stds) or to an oracle (the loop's
+    refining `observer`, if any)."""
+    if name in ORACLES:
         if true_code is None:
-            raise ValueError("the oracle strategy needs the shape's own code (it scores against the answer)")
-        return LatentOracle(true_code)
+            raise ValueError(f"the {name} strategy needs the shape's own code (it scores against the answer)")
+        return ORACLES[name](true_code, **options)
     if name not in STRATEGIES:
-        raise ValueError(f"unknown strategy {name!r}; choose one of {[*STRATEGIES, LatentOracle.name]}")
+        raise ValueError(f"unknown strategy {name!r}; choose one of {[*STRATEGIES, *ORACLES]}")
     if name in INFORMATION_STRATEGIES:
         return STRATEGIES[name](**options)
     return RandomView(seed) if name == RandomView.name else STRATEGIES[name]()
