@@ -116,7 +116,15 @@ def run_active(args: argparse.Namespace) -> dict:
     strategy = build_strategy(args.strategy, args.seed, **options)
     fusion = loop_fusion(predictor, observer)  # refined: the prior reconstruct.py refines, as Table A
     steps = active_reconstruction(
-        candidates, encode, strategy, predictor.decoder, args.views, start, fusion=fusion, observe=observer
+        candidates,
+        encode,
+        strategy,
+        predictor.decoder,
+        args.views,
+        start,
+        fusion=fusion,
+        resolution=args.resolution,  # the mesh the strategy scores on is the one the figure and files show
+        observe=observer,
     )
     out = Path(args.out) if args.out else DEFAULT_OUT / time.strftime("%Y-%m-%d_%H-%M-%S")
     surfaces = step_surfaces(steps, predictor.decoder, candidates, args.resolution)
