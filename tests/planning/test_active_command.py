@@ -1,11 +1,41 @@
-"""`python active.py` end to end on the ellipsoid world (the predictor is the test's stand-in encoder)."""
+"""`ushape active` on a trained (few-step) run of the ellipsoid world: its files, its steps and its errors."""
 
 import json
 
 import pytest
-from eval_world import FakePredictor
+from eval_world import FakePredictor, fit_sphere_run
 
 import ushape.cli.active as command
+from ushape.cli import main
+
+
+def test_active_writes_the_sequence_and_says_what_it_chose(sphere_world, tmp_path, capsys):
+    run = fit_sphere_run(sphere_world, tmp_path)
+    out = tmp_path / "active"
+    code = main(["active", "--run", str(run), "--views", "3", "--resolution", "24", "--strategy", "farthest",
+                 "--start", "1", "--out", str(out)])  # fmt: skip
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["candidates"] == "recorded" and summary["shape_id"] == "test_0"
+    assert [s["view"] for s in summary["steps"]] == [1, 5, 3]  # opposite, then 90 degrees (ties: lower index)
+    assert [s["azimuth"] for s in summary["steps"]] == pytest.approx([45.0, 225.0, 135.0])
+    assert all(0 <= s["iou"] <= 1 for s in summary["steps"])
+    for name in ("sequence.png", "views/step_3.png", "step_1.ply", "step_3.glb"):
+        assert (out / name).is_file(), name
+    printed = capsys.readouterr().out
+    assert "view 3: candidate 3 (azimuth 135" in printed and "farthest sequence of test_0" in printed
+
+
+def test_active_names_what_is_wrong(sphere_world, tmp_path, capsys):
+    run = fit_sphere_run(sphere_world, tmp_path)
+    assert main(["active", "--run", str(run), "--shape", "chair_9", "--out", str(tmp_path / "x")]) == 2
+    assert "is not in the test split" in capsys.readouterr().err
+    assert main(["active", "--run", str(run), "--views", "0"]) == 2
+    assert main(["active", "--run", str(run), "--candidates", "orbit", "--out", str(tmp_path / "y")]) == 2
+    assert "candidates=recorded" in capsys.readouterr().err
+    assert main(["active", "--run", str(run), "--observe", "masks", "--out", str(tmp_path / "z")]) == 2
+    assert "no masks to refine on" in capsys.readouterr().err  # this world's views.npz holds cameras only
+    assert main(["active", "--run", str(run), "--observe", "masks", "--refine-size", "0"]) == 2
 
 
 @pytest.fixture()
