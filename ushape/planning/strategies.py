@@ -28,7 +28,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ushape.decoder.query import decode_points
+from ushape.decoder.query import code_sdf_fn
 from ushape.fusion.rules import FusedCode
 from ushape.planning.criteria import angular_gap, uncertain_surface, unseen_uncertain_surface
 from ushape.planning.information import (
@@ -168,9 +168,9 @@ class OccupancyOracle(LatentOracle):
     def distance(self, state: PlanState) -> Callable[[FusedCode], float]:
         decoder = state.decoder
         if self._reference is None or self._reference[0] is not decoder:
-            self._reference = (decoder, decode_points(decoder, self.true_code, self.points) < 0)
+            self._reference = (decoder, code_sdf_fn(decoder, self.true_code)(self.points) < 0)
         reference = self._reference[1]
-        return lambda code: 1.0 - occupancy_iou(decode_points(decoder, code.mu.float(), self.points) < 0, reference)
+        return lambda code: 1.0 - occupancy_iou(code_sdf_fn(decoder, code.mu)(self.points) < 0, reference)
 
 
 STRATEGIES = {
