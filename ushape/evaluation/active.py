@@ -109,11 +109,10 @@ def loop_fusion(predictor, observer):
 
 def strategy_options(name: str, size: int, predictor, observer) -> dict:
     """The information strategies' rays per side (`size`); information-seen's floors, the predictor's run's seen
-    model fitted for what the loop observes (masks where it observes nothing); the oracle's refining observer
-    (it scores the belief the loop would refine, not the fused code)."""
+    model fitted for what the loop observes (masks where it observes nothing); an oracle's observer (it scores the
+    belief the loop would hold: the fused code, or its refinement)."""
     if name in ORACLES:
-        refining = getattr(observer, "name", FusedGaussian.name) != FusedGaussian.name
-        return {"observer": observer} if refining else {}
+        return {"observer": observer}
     if name not in INFORMATION_STRATEGIES:
         return {}
     options = {"size": size}

@@ -30,6 +30,7 @@ from torch import Tensor
 
 from ushape.decoder.query import code_sdf_fn
 from ushape.fusion.rules import FusedCode
+from ushape.metrics.reconstruction import EmptyOccupancyError, iou_from_occupancy, sdf_inside_fn
 from ushape.planning.criteria import angular_gap, uncertain_surface, unseen_uncertain_surface
 from ushape.planning.information import (
     INFORMATION_STRATEGIES,
@@ -119,8 +120,8 @@ def code_distance(true_code: Tensor) -> Callable[[FusedCode], float]:
 
 class LatentOracle:
     """Minus the distance to the shape's own code of the belief after the views taken plus the candidate: their
-    fused code, or with a refining `observer` (ushape.planning.observers) that code refined on those views, as
-    the loop would refine it. Refined, it costs one refinement per open candidate."""
+    fused code, or with the loop's `observer` (ushape.planning.observers) what it makes of that code: the code
+    itself (none), or its refinement on those views, which costs one refinement per open candidate."""
 
     name = "oracle"
 
@@ -143,12 +144,15 @@ class LatentOracle:
 
 
 def occupancy_iou(
-    inside: Tensor,  # [P] bool
-    reference: Tensor,  # [P] bool
+    inside: np.ndarray,  # [P] bool
+    reference: np.ndarray,  # [P] bool
 ) -> float:
-    """|inside & reference| / |inside | reference| (1 where both are empty)."""
-    union = int((inside | reference).sum())
-    return 1.0 if union == 0 else int((inside & reference).sum()) / union
+    """The IoU of two occupancies (`metrics.reconstruction.iou_from_occupancy`), 1 where both are empty: two
+    empty shapes are alike, which is what an oracle's distance needs."""
+    try:
+        return iou_from_occupancy(inside, reference)
+    except EmptyOccupancyError:
+        return 1.0
 
 
 class OccupancyOracle(LatentOracle):
@@ -163,14 +167,13 @@ class OccupancyOracle(LatentOracle):
         super().__init__(true_code, observer)
         generator = torch.Generator().manual_seed(seed)
         self.points = torch.rand(n_points, 3, generator=generator) * 2.0 - 1.0  # [P, 3]
-        self._reference: tuple[object, Tensor] | None = None
 
     def distance(self, state: PlanState) -> Callable[[FusedCode], float]:
-        decoder = state.decoder
-        if self._reference is None or self._reference[0] is not decoder:
-            self._reference = (decoder, code_sdf_fn(decoder, self.true_code)(self.points) < 0)
-        reference = self._reference[1]
-        return lambda code: 1.0 - occupancy_iou(code_sdf_fn(decoder, code.mu)(self.points) < 0, reference)
+        def occupancy(code: Tensor) -> np.ndarray:  # [P] bool
+            return sdf_inside_fn(code_sdf_fn(state.decoder, code))(self.points)
+
+        reference = occupancy(self.true_code)
+        return lambda belief: 1.0 - occupancy_iou(occupancy(belief.mu), reference)
 
 
 STRATEGIES = {
@@ -191,7 +194,7 @@ ORACLES = {s.name: s for s in (LatentOracle, OccupancyOracle)}
 def build_strategy(name: str, seed: int = 0, true_code: Tensor | None = None, **options):
     """A strategy by name (one of STRATEGIES, or one of ORACLES given the shape's own code); options go to the
     information strategies (their rays per side `size`, the residuals' stds) or to an oracle (the loop's
-    refining `observer`, if any)."""
+    `observer`, if any)."""
     if name in ORACLES:
         if true_code is None:
             raise ValueError(f"the {name} strategy needs the shape's own code (it scores against the answer)")
