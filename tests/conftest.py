@@ -18,7 +18,8 @@ from ushape.data.cameras import look_at  # noqa: E402
 from ushape.encoder.datamodule import EncoderDataModule  # noqa: E402
 from ushape.encoder.module import EncoderModule  # noqa: E402
 
-torch.set_num_threads(2)
+# OMP_NUM_THREADS=1 make test runs the suite on one thread (the results must not depend on it).
+torch.set_num_threads(int(os.environ["OMP_NUM_THREADS"]))
 
 # The tiny trained run folder (random-init ResNet-18 at 16 px, one SGD step) and its world.
 TINY_LATENT = 8

@@ -76,3 +76,21 @@ def test_bad_input_is_one_line_and_exit_2_unless_hydra_full_error(monkeypatch, c
         with reporting_bad_input():
             raise InputError("shown with its traceback")
     assert bad_input_exit(InputError("x")) is None
+
+
+def test_a_target_that_does_not_import_is_named_with_its_key():
+    """eval.py methods=[{_target_: ushape.nope.Thing}] ended in a 93-line traceback."""
+    with pytest.raises(InstantiationException) as caught:
+        instantiate({"methods": [{"_target_": "ushape.nope.Thing"}]}).methods
+    line = describe(caught.value)
+    assert line is not None and "ushape.nope.Thing: no such class or function can be imported" in line, line
+
+
+def test_a_missing_dataset_folder_is_named_before_the_config_is_printed(tmp_path):
+    from repo_commands import run_command
+
+    missing = tmp_path / "no_voxels"
+    result = run_command(tmp_path, "train.py", "data=r2n2", f"data.voxels_root={missing}", timeout=300)
+    assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr[-2000:]
+    assert f"data.voxels_root={missing} is not a folder" in result.stderr
+    assert "stage1" not in result.stdout + result.stderr  # the config tree was not printed

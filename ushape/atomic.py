@@ -15,6 +15,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from ushape.errors import InputError
+
 _UMASK = os.umask(0)
 os.umask(_UMASK)
 
@@ -84,3 +86,20 @@ def torch_save(obj: Any, path: str | os.PathLike) -> None:
 
     with atomic_path(path) as tmp:
         torch.save(obj, tmp)
+
+
+class DamagedFileError(InputError):
+    """A stored JSON file that cannot be read back (cut off, or edited by hand); the message names it."""
+
+
+def read_json_object(path: str | os.PathLike, remedy: str) -> dict[str, Any]:
+    """A JSON object stored by `write_json`; a DamagedFileError naming the file and `remedy` (what to do) when it
+    does not parse or is not an object."""
+    path = Path(path)
+    try:
+        value = json.loads(path.read_text())
+    except (UnicodeDecodeError, ValueError) as err:
+        raise DamagedFileError(f"{path} is damaged ({err}): {remedy}") from err
+    if not isinstance(value, dict):
+        raise DamagedFileError(f"{path} is damaged (it holds a {type(value).__name__}, not an object): {remedy}")
+    return value

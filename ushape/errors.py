@@ -37,6 +37,7 @@ from omegaconf.errors import (
 )
 
 EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a command stopped by Ctrl+C
 FULL_ERROR = "HYDRA_FULL_ERROR"  # Hydra's switch; "1": full tracebacks, nothing translated
 # Set beside FULL_ERROR while reporting_bad_input has set it (and inherited by processes started then,
 # e.g. DDP ranks): Hydra then raises its errors here instead of printing them, and the user did not ask.
@@ -61,6 +62,10 @@ def describe(err: BaseException) -> str | None:
     if isinstance(err, InputError):
         return str(err)
     if isinstance(err, InstantiationException):  # a configured object refused its arguments
+        if str(err).startswith("Error locating target"):  # a `_target_` that names no importable object
+            target = re.search(r"target '([^']+)'", str(err))
+            name = target.group(1) if target else "?"
+            return f"{_full_key(err)}._target_={name}: no such class or function can be imported; check its spelling"
         cause = _cause(err, (InputError, MissingMandatoryValue, InterpolationResolutionError))
         if cause is None:
             return None

@@ -188,8 +188,14 @@ def test_the_step_after_fusion_runs_once_per_view_and_fused_instance(sphere_worl
     predictor = make_run(sphere_world, sphere_codes, None, "es", tmp_path, tiny_settings()).predictor
     first = list(fused[0][0])
     bayesian = fuse_bayesian(*encode_views(predictor, sphere_world, first, 1.0).select(first))
+    # The evaluation encodes a shape's views in one batch, this check only the instance's: batched
+    # matrix products may differ in the last bits between batchings (they do on AVX2-only CPUs), so
+    # the same fused Gaussian is matched to float32 rounding, not bit for bit.
     assert any(
-        torch.equal(c[2].mu, bayesian.mu) and torch.equal(c[2].var, bayesian.var) for c in fused if c[0] == tuple(first)
+        torch.allclose(c[2].mu, bayesian.mu, rtol=1e-5, atol=1e-6)
+        and torch.allclose(c[2].var, bayesian.var, rtol=1e-5, atol=1e-9)
+        for c in fused
+        if c[0] == tuple(first)
     )
     records = [r for r in result["records"] if r["encoder"] == "es+tagged"]
     assert {r["iou"] for r in records if r["shape_id"] == "test_0"} == {

@@ -17,7 +17,7 @@ import importlib
 import sys
 from typing import Sequence
 
-from ushape.errors import reporting_bad_input
+from ushape.errors import EXIT_INTERRUPTED, reporting_bad_input
 
 # command -> (module whose main() runs it, what it does). Hydra commands read their overrides from sys.argv.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -50,8 +50,16 @@ def main(argv: Sequence[str] | None = None, prog: str | None = None) -> int:
     if name not in COMMANDS:
         print(f"ushape: unknown command {name!r}\n\n{usage()}", file=sys.stderr)
         return 2
-    with reporting_bad_input():  # one line and exit code 2, whichever command it comes from
-        return _run(name, rest, prog)
+    try:
+        with reporting_bad_input():  # one line and exit code 2, whichever command it comes from
+            return _run(name, rest, prog)
+    except KeyboardInterrupt:
+        # Every file is written atomically and each stage resumes: what was finished is kept.
+        print(
+            f"\ninterrupted: {prog or 'ushape ' + name} stopped; finished files are kept, rerun to resume",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED
 
 
 def _run(name: str, rest: list[str], prog: str | None) -> int:

@@ -33,7 +33,8 @@ from ushape.mesh.extraction import EmptySurfaceError
 from ushape.propagation.depth_implicit import DEPTH_METHODS
 from ushape.propagation.mesh import METHODS
 from ushape.reconstruction.calibrated_fusion import calibrate_fusion, default_fusion
-from ushape.reconstruction.pipeline import reconstruct
+from ushape.reconstruction.out_dir import check_out_dir
+from ushape.reconstruction.pipeline import check_settings, reconstruct
 from ushape.reconstruction.predictor import collect_inputs, load_predictor
 from ushape.reconstruction.refine_calibration import FIT_SHAPES, fit_and_store_refinement_calibration
 from ushape.reconstruction.settings import ReconstructionSettings
@@ -147,6 +148,38 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def settings_from(args: argparse.Namespace) -> ReconstructionSettings:
+    """The reconstruction's settings from its flags (their defaults are ReconstructionSettings')."""
+    return ReconstructionSettings(
+        resolution=args.resolution,
+        uncertainty=args.uncertainty,
+        n_samples=args.samples,
+        depth_size=args.depth_size,
+        depth_method=args.depth_method,
+        depth_codes=args.depth_codes,
+        std_max=args.std_max,
+        cmap=args.cmap,
+        seed=args.seed,
+        refine=args.refine,
+        refine_size=args.refine_size,
+        refine_starts=args.refine_starts,
+        precision=args.precision,
+    )
+
+
+def refinement_outcome(record: dict) -> str:
+    """One line: whether the code was refined, on how many views and what each view that gave less was missing."""
+    head = f"refinement ({record['mode']}, {record['iterations']} iterations)"
+    if record["fallback"]:
+        return f"{head}: not refined, the fused code is kept: {record['fallback']}"
+    views = record.get("views") or []
+    used = [v for v in views if v["used"]]
+    notes = "; ".join(f"view {i}: {v['fallback']}" for i, v in enumerate(views) if v["fallback"])
+    with_depth = sum(v["used"] == "masks+depth" for v in views)
+    depth = f", depth from {with_depth}" if record["mode"] == "depth" else ""
+    return f"{head}: refined on {len(used)} of {len(views)} views{depth}" + (f" ({notes})" if notes else "")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(message)s")
     args = build_parser().parse_args(argv)
@@ -164,30 +197,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
             print(json.dumps(record, indent=2))
             return 0
+        settings = settings_from(args)
+        check_settings(settings)
+        out = check_out_dir(Path(args.out) if args.out else DEFAULT_OUT / time.strftime("%Y-%m-%d_%H-%M-%S"))
+        if (args.cameras or args.masks) and not args.refine:
+            raise ValueError("--cameras and --masks are read by the refinement: add --refine masks|depth")
         files = collect_inputs(args.inputs)
+        given = args.cameras or args.masks
+        observations = input_views(files, args.cameras, args.masks) if args.refine and given else None
         fusion = build_fusion(args.fusion, args.k) if args.fusion else None
         predictor = load_predictor(source, temperature=args.temperature, root=args.root)
         fusion = default_fusion(predictor, args.k) if fusion is None else calibrate_fusion(fusion, predictor)
-        settings = ReconstructionSettings(
-            resolution=args.resolution,
-            uncertainty=args.uncertainty,
-            n_samples=args.samples,
-            depth_size=args.depth_size,
-            depth_method=args.depth_method,
-            depth_codes=args.depth_codes,
-            std_max=args.std_max,
-            cmap=args.cmap,
-            seed=args.seed,
-            refine=args.refine,
-            refine_size=args.refine_size,
-            refine_starts=args.refine_starts,
-            precision=args.precision,
-        )
-        if (args.cameras or args.masks) and not args.refine:
-            raise ValueError("--cameras and --masks are read by the refinement: add --refine masks|depth")
-        given = args.cameras or args.masks
-        observations = input_views(files, args.cameras, args.masks) if args.refine and given else None
-        out = Path(args.out) if args.out else DEFAULT_OUT / time.strftime("%Y-%m-%d_%H-%M-%S")
         summary = reconstruct(predictor, files, fusion, out, settings, observations)
     except EmptySurfaceError as err:
         print(
@@ -206,9 +226,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"mesh {summary['mesh']['vertices']} vertices -> {out}"
     )
     if summary["refinement"] is not None:
-        record = summary["refinement"]
-        outcome = f"fell back to the fused code: {record['fallback']}" if record["fallback"] else "refined"
-        print(f"  refinement ({record['mode']}, {record['iterations']} iterations): {outcome}")
+        print(f"  {refinement_outcome(summary['refinement'])}")
     for name, path in summary["files"].items():
         print(f"  {name}: {path}")
     return 0

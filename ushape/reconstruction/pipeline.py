@@ -26,6 +26,7 @@ from ushape.propagation.mesh import METHODS
 from ushape.reconstruction.export import coloured_mesh, write_mesh_files
 from ushape.reconstruction.figures import overview_figure
 from ushape.reconstruction.mesh_std import Fusion, mesh_std, sdf_distance_scale, sdf_floor, sdf_temperature
+from ushape.reconstruction.out_dir import SUMMARY_FILE, claimed
 from ushape.reconstruction.predictor import Predictor
 from ushape.reconstruction.refine_calibration import read_refinement_calibration
 from ushape.reconstruction.refined_code import refined
@@ -34,9 +35,9 @@ from ushape.reconstruction.view_depth import depth_maps, view_camera, write_dept
 from ushape.reconstruction.visibility import hidden_over_visible
 from ushape.refinement import MODES as REFINE_MODES
 from ushape.refinement import ObservedView
+from ushape.refinement.posterior import MIN_SIZE as REFINE_MIN_SIZE
 
 log = logging.getLogger(__name__)
-SUMMARY_FILE = "summary.json"
 
 
 class Timer:
@@ -58,6 +59,10 @@ def check_settings(settings: ReconstructionSettings) -> None:
         raise ValueError(f"refine must be one of {REFINE_MODES} or None, got {settings.refine!r}")
     if settings.refine_starts < 0:
         raise ValueError(f"refine_starts (--refine-starts) must be >= 0, got {settings.refine_starts}")
+    if settings.refine_size < REFINE_MIN_SIZE:
+        raise ValueError(
+            f"refine_size (--refine-size) must be >= {REFINE_MIN_SIZE} rays a side, got {settings.refine_size}"
+        )
     if settings.uncertainty not in METHODS:
         raise ValueError(f"uncertainty must be one of {METHODS}, got {settings.uncertainty!r}")
     if settings.depth_method not in DEPTH_METHODS:
@@ -123,8 +128,20 @@ def reconstruct(
     check_settings(settings)
     timer, generator = Timer(), torch.Generator().manual_seed(settings.seed)
     encoded = encode_views(predictor, inputs, fusion, settings, observations, timer)
-    out_dir = Path(out_dir)  # made once the views are read: unreadable inputs leave nothing behind
-    out_dir.mkdir(parents=True, exist_ok=True)
+    with claimed(out_dir):  # made once the views are read: unreadable inputs leave nothing behind
+        return write_outputs(predictor, fusion, settings, encoded, Path(out_dir), timer, generator)
+
+
+def write_outputs(
+    predictor: Predictor,
+    fusion: Fusion,
+    settings: ReconstructionSettings,
+    encoded: Encoded,
+    out_dir: Path,
+    timer: Timer,
+    generator: torch.Generator,
+) -> dict[str, Any]:
+    """The mesh of the fused (or refined) code with its std, the depth maps and summary.json, into out_dir."""
     fused, images = encoded.fused, encoded.images
     precision, why = resolve_precision(settings.precision, decoder_device(predictor.decoder))
     bf16 = precision == "bf16"
@@ -240,6 +257,9 @@ def write_summary(
                 "kept": i in kept,
                 "depth": depth[i],
                 "visibility": seen[i],
+                # what the refinement took of this view ({"used": "masks" | "masks+depth" | None, "fallback": why
+                # less than asked}); None without refinement
+                "refined_on": refinement["views"][i] if refinement and i < len(refinement.get("views", [])) else None,
             }
             for i, p in enumerate(paths)
         ],

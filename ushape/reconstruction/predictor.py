@@ -25,6 +25,7 @@ import torch.nn.functional as F
 from omegaconf import OmegaConf
 from torch import Tensor, nn
 
+from ushape import atomic
 from ushape.checkpoints import load_checkpoint
 from ushape.data.augment import IMAGE_SUFFIXES, CompositeBackground, load_rgba, resize
 from ushape.errors import InputError, MissingInputError
@@ -108,6 +109,11 @@ def temperature_path(checkpoint: str | Path) -> Path:
     return Path(checkpoint).parent / TEMPERATURE_FILE
 
 
+def stored_temperature(path: Path) -> dict:
+    """temperature.json's record; a damaged file is named, with what to do."""
+    return atomic.read_json_object(path, "delete it and refit with `python reconstruct.py --fit-temperature --run RUN`")
+
+
 def read_temperatures(checkpoint: str | Path) -> tuple[float, float | None]:
     """(latent T, SDF-space T or None where only a latent one was fitted), as `fit_and_store_temperature`
     stored them beside a checkpoint, read in one go."""
@@ -117,7 +123,7 @@ def read_temperatures(checkpoint: str | Path) -> tuple[float, float | None]:
             f"no {TEMPERATURE_FILE} beside {checkpoint}: fit it first with `python reconstruct.py --fit-temperature "
             f"--checkpoint {checkpoint}`"
         )
-    record = json.loads(path.read_text())
+    record = stored_temperature(path)
     sdf = record.get("sdf_temperature")
     return float(record["temperature"]), None if sdf is None else float(sdf)
 
@@ -129,7 +135,7 @@ def read_shared_error(checkpoint: str | Path) -> SharedError | None:
     path = temperature_path(checkpoint)
     if not path.is_file():
         return None
-    stored = json.loads(path.read_text())
+    stored = stored_temperature(path)
     record = stored.get("shared_error")
     if record is None:
         return None

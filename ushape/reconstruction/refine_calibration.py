@@ -23,7 +23,6 @@ as reconstruct.py refines it. `refinement_calibration.json` = {mode: {"informati
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -75,7 +74,14 @@ def read_refinement_calibration(checkpoint: str | Path, mode: str) -> dict[str, 
     path = calibration_path(checkpoint)
     if not path.is_file():
         return None
-    return json.loads(path.read_text()).get(mode)
+    return stored_calibration(path).get(mode)
+
+
+def stored_calibration(path: Path) -> dict[str, Any]:
+    """Every mode's fit in refinement_calibration.json; a damaged file is named, with what to do."""
+    return atomic.read_json_object(
+        path, "move it aside and refit each mode with `python reconstruct.py --fit-refinement masks|depth --run RUN`"
+    )
 
 
 def seen_model(checkpoint: str | Path, observes: str) -> dict[str, Any]:
@@ -212,9 +218,10 @@ def fit_refinement_calibration(
 def fit_and_store_refinement_calibration(predictor: Predictor, mode: str, **options) -> dict[str, Any]:
     """Fit this mode's calibration and write it into refinement_calibration.json beside the checkpoint (the
     other mode's fit is kept); returns the fit."""
-    record = fit_refinement_calibration(predictor, mode, **options)
     path = calibration_path(predictor.checkpoint)
-    stored = json.loads(path.read_text()) if path.is_file() else {}
+    stored = stored_calibration(path) if path.is_file() else {}  # read before the fit: a damaged file stops it now
+    record = fit_refinement_calibration(predictor, mode, **options)
+    stored = stored_calibration(path) if path.is_file() else {}  # again: another fit may have written it since
     stored[mode] = record
     atomic.write_json(path, stored)
     return record

@@ -12,6 +12,7 @@ image's alpha. An image with no camera is returned as None: the refinement skips
 from __future__ import annotations
 
 import logging
+import zipfile
 from pathlib import Path
 from typing import Sequence
 
@@ -20,7 +21,8 @@ import torch
 
 from ushape.data.augment import read_image
 from ushape.data.layout import VIEWS_FILE
-from ushape.refinement.views import ObservedView, world_views
+from ushape.errors import InputError, MissingInputError
+from ushape.refinement.views import ObservedView, camera_problem
 
 log = logging.getLogger(__name__)
 
@@ -32,42 +34,89 @@ def image_mask(path: str | Path, from_alpha: bool = True) -> torch.Tensor:
     return torch.as_tensor(level > 0.5).float()
 
 
+def image_size(path: str | Path) -> tuple[int, int]:
+    """(H, W) of an image file, after its EXIF orientation (as `read_image` turns it)."""
+    return tuple(read_image(path).shape[:2])
+
+
+def load_camera_file(cameras: str | Path) -> dict[str, np.ndarray]:
+    """The arrays of a views.npz-like camera file; an InputError naming the file when it is not one."""
+    path = Path(cameras)
+    if not path.is_file():
+        raise MissingInputError(f"camera file {path} does not exist")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {key: data[key] for key in data.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as err:
+        raise InputError(
+            f"camera file {path} is not a readable .npz archive ({type(err).__name__}): save it with "
+            "numpy.savez(path, K=..., world_to_cam=...)"
+        ) from err
+    if "K" not in arrays or "world_to_cam" not in arrays:
+        raise InputError(f"camera file {path} needs arrays K [V, 3, 3] and world_to_cam [V, 4, 4]")
+    for key, shape in (("K", (3, 3)), ("world_to_cam", (4, 4))):
+        value = arrays[key]
+        if value.ndim != 3 or value.shape[1:] != shape:
+            raise InputError(f"camera file {path}: {key} must be [V, {shape[0]}, {shape[1]}], got {value.shape}")
+    return arrays
+
+
 def camera_file_views(
     cameras: str | Path, images: Sequence[Path], masks: Sequence[Path] | None
 ) -> list[ObservedView | None]:
     """One ObservedView per image from a views.npz-like camera file (see the module docstring)."""
-    with np.load(cameras) as data:
-        if "K" not in data.files or "world_to_cam" not in data.files:
-            raise ValueError(f"camera file {cameras} needs arrays K [V, 3, 3] and world_to_cam [V, 4, 4]")
-        if len(data["K"]) != len(images):
-            raise ValueError(f"camera file {cameras} has {len(data['K'])} cameras for {len(images)} input images")
-        stored = {key: data[key] for key in ("masks", "depth") if key in data.files}
-        Ks, w2cs = data["K"].astype(np.float64), data["world_to_cam"].astype(np.float64)
+    data = load_camera_file(cameras)
+    if len(data["K"]) != len(images):
+        raise InputError(f"camera file {cameras} has {len(data['K'])} cameras for {len(images)} input images")
     views = []
     for i, image in enumerate(images):
-        if "masks" in stored:
-            mask = torch.as_tensor(stored["masks"][i]).float()
+        where = f"camera file {cameras}, view {i} ({Path(image).name})"
+        if "masks" in data:
+            mask, mask_source = torch.as_tensor(data["masks"][i]).float(), f"{cameras}'s masks[{i}]"
         elif masks is not None:
-            mask = image_mask(masks[i], from_alpha=False)
+            mask, mask_source = image_mask(masks[i], from_alpha=False), str(masks[i])
         else:
-            mask = image_mask(image)
-        depth = torch.as_tensor(stored["depth"][i]).float() if "depth" in stored else None
-        views.append(ObservedView(Ks[i], w2cs[i], mask, depth))
+            mask, mask_source = image_mask(image), f"{Path(image).name}'s alpha"
+        depth = torch.as_tensor(data["depth"][i]).float() if "depth" in data else None
+        view = ObservedView(data["K"][i].astype(np.float64), data["world_to_cam"][i].astype(np.float64), mask, depth)
+        views.append(checked_view(view, image, where, mask_source))
     return views
+
+
+def checked_view(view: ObservedView, image: Path, where: str, mask_source: str) -> ObservedView:
+    """The view, after checking its camera and that its mask (and depth) are the size of its image: an InputError
+    naming `where` otherwise."""
+    hw = image_size(image)
+    if tuple(view.mask.shape) != hw:
+        raise InputError(
+            f"{where}: the mask ({mask_source}) is {view.mask.shape[1]}x{view.mask.shape[0]} pixels, the image "
+            f"{hw[1]}x{hw[0]}: pass a mask of the image's size"
+        )
+    if view.depth is not None and tuple(view.depth.shape) != hw:
+        raise InputError(
+            f"{where}: the depth map is {view.depth.shape[1]}x{view.depth.shape[0]} pixels, the image {hw[1]}x{hw[0]}"
+        )
+    problem = camera_problem(view.K, view.world_to_cam, hw)
+    if problem is not None:
+        raise InputError(f"{where}: {problem}")
+    return view
 
 
 def render_view(views_npz: Path, index: int, image: Path, mask: Path | None) -> ObservedView:
     """A render's view from its views.npz; the mask file passed, else the stored mask, else the image's alpha."""
-    with np.load(views_npz) as data:
-        stored = "masks" in data.files
-    if stored and mask is None:
-        (view,) = world_views(views_npz, [index])
-        return view
-    with np.load(views_npz) as data:
-        K, w2c = data["K"][index].astype(np.float64), data["world_to_cam"][index].astype(np.float64)
-        depth = torch.as_tensor(data["depth"][index]).float() if "depth" in data.files else None
-    found = image_mask(image) if mask is None else image_mask(mask, from_alpha=False)
-    return ObservedView(K, w2c, found, depth)
+    data = load_camera_file(views_npz)
+    where = f"{views_npz}, view {index} ({Path(image).name})"
+    if not 0 <= index < len(data["K"]):
+        raise InputError(f"{where}: the file holds views 0..{len(data['K']) - 1} only")
+    K, w2c = data["K"][index].astype(np.float64), data["world_to_cam"][index].astype(np.float64)
+    depth = torch.as_tensor(data["depth"][index]).float() if "depth" in data else None
+    if mask is not None:
+        found, source = image_mask(mask, from_alpha=False), str(mask)
+    elif "masks" in data:
+        found, source = torch.as_tensor(data["masks"][index]).float(), f"{views_npz.name}'s masks[{index}]"
+    else:
+        found, source = image_mask(image), f"{Path(image).name}'s alpha"
+    return checked_view(ObservedView(K, w2c, found, depth), image, where, source)
 
 
 def input_views(
@@ -75,7 +124,7 @@ def input_views(
 ) -> list[ObservedView | None]:
     """Per input image its ObservedView, or None where no camera is known (a photo without a camera file)."""
     if masks is not None and len(masks) != len(images):
-        raise ValueError(f"{len(masks)} mask files for {len(images)} images: pass one mask per image, in order")
+        raise InputError(f"{len(masks)} mask files for {len(images)} images: pass one mask per image, in order")
     if cameras is not None:
         return camera_file_views(cameras, images, masks)
     views = []

@@ -35,10 +35,11 @@ from torch import Tensor
 
 from ushape.decoder.query import frozen
 from ushape.refinement.observation import KINDS, ObservationSettings, Residuals, residuals, with_jacobian
-from ushape.refinement.views import ObservedView, check_view
+from ushape.refinement.views import ObservedView, ScreenedView, screen_view
 
 log = logging.getLogger(__name__)
 MODES = ("masks", "depth")
+MIN_SIZE = 4  # rays per image side: fewer cannot draw an outline
 
 
 @dataclass(frozen=True)
@@ -77,6 +78,8 @@ def refine_settings(
     prior draws scored beside the prior's mean, the LM starting from the lowest energy)."""
     if int(starts) != starts or starts < 0:
         raise ValueError(f"starts (prior draws scored beside the prior's mean) must be an integer >= 0, got {starts!r}")
+    if int(size) != size or size < MIN_SIZE:
+        raise ValueError(f"size (rays compared per image side) must be an integer >= {MIN_SIZE}, got {size!r}")
     return RefineSettings(
         mode=mode,
         sigma_mask=sigma_mask,
@@ -84,7 +87,7 @@ def refine_settings(
         iterations=iterations,
         information_scale=information_scale,
         starts=int(starts),
-        observation=ObservationSettings(size=size),
+        observation=ObservationSettings(size=int(size)),
     )
 
 
@@ -101,6 +104,7 @@ class Posterior:
     rms: dict[str, float] = field(default_factory=dict)
     fallback: str | None = None
     information: Tensor | None = None  # J^T W J [D, D] at the MAP (before information_scale), for fitting that scale
+    views: list[dict[str, str | None]] = field(default_factory=list)  # per view: what it used, and why not more
 
     @property
     def var(self) -> Tensor:  # [D]
@@ -115,6 +119,7 @@ class Posterior:
             "rms_residual": self.rms,
             "fallback": self.fallback,
             "trace_cov": float(self.var.sum()),
+            "views": self.views,
         }
 
 
@@ -157,6 +162,11 @@ def fallback(mu: Tensor, var: Tensor, reason: str, **known: Any) -> Posterior:
     return Posterior(mu.detach().float().clone(), cov.clone(), fallback=reason, **known)
 
 
+def _reasons(screened: Sequence[ScreenedView]) -> str:
+    """'view 0: empty mask: ...; view 2: ...' for the views that gave nothing."""
+    return "; ".join(f"view {i}: {s.fallback}" for i, s in enumerate(screened) if s.view is None)
+
+
 def summarise(res: Residuals) -> tuple[dict[str, int], dict[str, float]]:
     rows, rms = {}, {}
     for kind, name in enumerate(KINDS):
@@ -176,25 +186,27 @@ def refine(
     """MAP code and full-covariance Laplace posterior of the prior N(mu, var) given the views' masks (and depth)."""
     if settings.mode not in MODES:
         raise ValueError(f"refine mode must be one of {MODES}, got {settings.mode!r}")
-    missing = [i for i, v in enumerate(views) if v is None]
-    if missing:
-        log.warning("views %s have no camera: they are not refined (pass a camera file for them)", missing)
-    views = [v for v in views if v is not None]
-    for view in views:
-        check_view(view)
+    use_depth = settings.mode == "depth"
+    screened = [screen_view(v, use_depth) for v in views]
+    known: dict[str, Any] = {"views": [s.record() for s in screened]}
+    for i, s in enumerate(screened):
+        if s.fallback is not None:
+            log.warning("view %d: %s", i, s.fallback if s.view is not None else f"{s.fallback}; not refined on")
+    views = [s.view for s in screened if s.view is not None]
     if not views:
-        return fallback(mu, var, "no view has a camera")
+        if all(s.fallback == "no camera" for s in screened):
+            return fallback(mu, var, "no view has a camera", **known)
+        return fallback(mu, var, f"no view has a usable mask ({_reasons(screened)})", **known)
     if not any(bool((v.mask.reshape(-1)[v.seen().reshape(-1)] > 0.5).any()) for v in views):
-        return fallback(mu, var, "no view shows the object (empty masks)")
+        return fallback(mu, var, "no view shows the object (empty masks)", **known)
     precision = prior_precision(var)
     prior_mu = mu.detach().double()
-    use_depth = settings.mode == "depth"
     schedule = [
         replace(settings.observation, tau=settings.observation.tau * m) for m in settings.tau_schedule or (1.0,)
     ]
     with frozen(decoder):
         z = best_start(decoder, prior_mu, var, precision, views, settings, schedule[0], use_depth)
-        known: dict[str, Any] = {"iterations": 0}
+        known["iterations"] = 0
         for obs in schedule:
             z, res, w, energies, steps = levenberg_marquardt(
                 decoder, prior_mu, z, precision, views, settings, obs, use_depth

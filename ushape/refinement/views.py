@@ -35,11 +35,42 @@ class ObservedView:
         return torch.ones(self.image_hw, dtype=torch.bool) if self.observed is None else self.observed
 
 
+# A mask with at least this fraction of its observed pixels foreground draws no outline: nothing to fit.
+FULL_MASK = 0.995
+
+
+def camera_problem(K: np.ndarray, world_to_cam: np.ndarray, image_hw: tuple[int, int] | None = None) -> str | None:
+    """Why a camera cannot be used (None: it can): shapes, non-finite or singular values, a world_to_cam that is
+    not a rigid motion, the object (the world origin, centre of the unit sphere) behind the camera, and, given
+    the image's (H, W), a principal point outside it (K made for an image of another size)."""
+    K, w2c = np.asarray(K, dtype=np.float64), np.asarray(world_to_cam, dtype=np.float64)
+    if K.shape != (3, 3) or w2c.shape != (4, 4):
+        return f"needs K [3, 3] and world_to_cam [4, 4], got {K.shape} and {w2c.shape}"
+    for name, value in (("K", K), ("world_to_cam", w2c)):
+        if not np.isfinite(value).all():
+            return f"{name} holds NaN or inf values"
+    if K[0, 0] <= 0 or K[1, 1] <= 0 or abs(np.linalg.det(K)) < 1e-9:
+        return f"K is singular or has a focal length <= 0 (fx {K[0, 0]:.4g}, fy {K[1, 1]:.4g}): pass pixel intrinsics"
+    rotation = w2c[:3, :3]
+    if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-3) or np.linalg.det(rotation) <= 0:
+        return "world_to_cam's 3x3 block is not a rotation (a rigid world-to-camera motion is needed)"
+    if w2c[2, 3] <= 0:
+        return f"the object is behind the camera (the world origin's camera-frame z is {w2c[2, 3]:.3g}, must be > 0)"
+    if image_hw is not None:
+        (H, W), (cx, cy) = image_hw, (K[0, 2], K[1, 2])
+        if not (0 <= cx <= W and 0 <= cy <= H):
+            return (
+                f"K's principal point ({cx:.1f}, {cy:.1f}) lies outside the {W}x{H} image: K was made for an image "
+                "of another size"
+            )
+    return None
+
+
 def check_view(view: ObservedView) -> None:
     """Raise a ValueError that says what to pass when a view's arrays do not fit together."""
-    K, w2c = np.asarray(view.K), np.asarray(view.world_to_cam)
-    if K.shape != (3, 3) or w2c.shape != (4, 4):
-        raise ValueError(f"a view needs K [3, 3] and world_to_cam [4, 4], got {K.shape} and {w2c.shape}")
+    problem = camera_problem(view.K, view.world_to_cam)
+    if problem is not None:
+        raise ValueError(f"a view's camera: {problem}")
     if view.mask.ndim != 2:
         raise ValueError(f"a view's mask must be [H, W], got shape {tuple(view.mask.shape)}")
     for name in ("depth", "observed"):
@@ -100,3 +131,46 @@ def world_views(views_npz: str | Path, indices: list[int] | None = None, with_de
             )
             for i in chosen
         ]
+
+
+@dataclass(frozen=True)
+class ScreenedView:
+    """What the refinement takes of one view: the view (None: nothing), what it uses ("masks" or "masks+depth";
+    None: nothing) and, where it uses less than asked, why (a named fallback)."""
+
+    view: ObservedView | None
+    used: str | None
+    fallback: str | None = None
+
+    def record(self) -> dict[str, str | None]:
+        return {"used": self.used, "fallback": self.fallback}
+
+
+def screen_view(view: ObservedView | None, use_depth: bool) -> ScreenedView:
+    """The part of a view that carries information.
+
+    No camera gives nothing. A whole image (no `observed` crop) whose mask is empty or all object gives
+    nothing either: the object is in every input image, so its mask is wrong, and a mask with no outline
+    would fit a blob. (A crop may rightly show only background or only object: it is kept.) Asked for
+    depth, a view without finite depth returns gives its mask alone.
+    """
+    if view is None:
+        return ScreenedView(None, None, "no camera")
+    check_view(view)
+    if view.observed is None:
+        foreground = float((view.mask > 0.5).float().mean())
+        if foreground == 0.0:
+            return ScreenedView(None, None, "empty mask: the image shows no object")
+        if foreground >= FULL_MASK:
+            return ScreenedView(None, None, f"the mask is {100 * foreground:.1f} % object: it draws no outline")
+    seen = view.seen().reshape(-1)
+    if not use_depth:
+        return ScreenedView(view, "masks")
+    if view.depth is None:
+        return ScreenedView(view, "masks", "no depth: masks only")
+    depth = view.depth.reshape(-1)[seen]
+    if not bool(torch.isfinite(depth).all()):
+        return ScreenedView(replace(view, depth=None), "masks", "depth holds NaN or inf: masks only")
+    if not bool((depth > 0).any()):
+        return ScreenedView(replace(view, depth=None), "masks", "no depth return (all 0): masks only")
+    return ScreenedView(view, "masks+depth")

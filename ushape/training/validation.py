@@ -7,6 +7,7 @@ minute in; fusion.k=0 inside instantiate) is reported here with every other bad 
 from __future__ import annotations
 
 import numbers
+from pathlib import Path
 from typing import Any, Callable
 
 from hydra.core.hydra_config import HydraConfig
@@ -91,8 +92,28 @@ def _trainable_data(cfg: DictConfig) -> str | None:
     )
 
 
+def _data_folders(cfg: DictConfig) -> str | None:
+    """The folders a dataset reads (its class's INPUT_FOLDERS) exist: a missing one would otherwise fail only
+    once the world is built, after the config tree is printed."""
+    target = _select(cfg, "data._target_")
+    if target is None:
+        return None
+    try:
+        keys = getattr(get_class(target), "INPUT_FOLDERS", ())
+    except Exception:  # a target that does not import: instantiate names it, with its own error
+        return None
+    problems = []
+    for key in keys:
+        if OmegaConf.is_missing(cfg.data, key):
+            continue  # ???: Hydra's own message says it has no value
+        value = _select(cfg, f"data.{key}")
+        if value not in (None, "") and not Path(str(value)).expanduser().is_dir():
+            problems.append(f"data.{key}={value} is not a folder: pass the dataset's folder (data.{key}=/path/to/it)")
+    return "; ".join(problems) or None
+
+
 # Checks of keys together: each returns what is wrong, or None.
-RELATIONS: tuple[Callable[[DictConfig], str | None], ...] = (_latent_sizes, _trainable_data)
+RELATIONS: tuple[Callable[[DictConfig], str | None], ...] = (_latent_sizes, _trainable_data, _data_folders)
 
 
 def check_config(cfg: DictConfig) -> None:

@@ -169,6 +169,46 @@ def test_bad_input_is_skipped_with_its_reason_and_the_build_resumes(tmp_path):
     }
 
 
+def test_skip_reasons_are_the_real_cause_and_a_mended_file_is_used_on_the_next_build(tmp_path, caplog):
+    """A truncated binvox was skipped as an unformatted tuple, random bytes as a missing charset module, and a
+    mended file stayed skipped (from the old skipped.json) with no notice."""
+    _require(*(VOXELS / CHAIRS / m for m in OTHERS))
+    root = tmp_path / "ShapeNetVox32"
+    for model_id in OTHERS:
+        shutil.copytree(VOXELS / CHAIRS / model_id, root / CHAIRS / model_id)
+    good = (root / CHAIRS / OTHERS[1] / "model.binvox").read_bytes()
+    (root / CHAIRS / OTHERS[1] / "model.binvox").write_bytes(good[: len(good) // 2])
+    (root / CHAIRS / OTHERS[2] / "model.binvox").write_bytes(np.random.default_rng(0).bytes(len(good)))
+    split = _split_file(tmp_path, [OTHERS[0]], [OTHERS[1]], [OTHERS[2]])
+    world = R2N2World("chairs", str(root), str(tmp_path / "cache"), split_file=split, **SMALL)
+    index = world.build()
+    skipped = json.loads((index.root / "skipped.json").read_text())
+    assert "is truncated or damaged: its run-length data covers" in skipped[OTHERS[1]], skipped
+    assert "is not a binvox file" in skipped[OTHERS[2]], skipped
+    assert "%" not in json.dumps(skipped) and "charset" not in json.dumps(skipped)
+    assert "the val split has 0 of" not in caplog.text  # uncapped: nothing was asked for
+    (root / CHAIRS / OTHERS[1] / "model.binvox").write_bytes(good)  # mended
+    again = world.build()
+    assert OTHERS[1] not in json.loads((index.root / "skipped.json").read_text())
+    assert again.splits["val"] == [OTHERS[1]]
+
+
+def test_a_split_smaller_than_asked_is_named(tmp_path, caplog):
+    """data.n_val=1 with its one model unreadable ended "train 2, val 0, test 1" with exit 0."""
+    _require(*(VOXELS / CHAIRS / m for m in OTHERS))
+    root = tmp_path / "ShapeNetVox32"
+    for model_id in OTHERS:
+        shutil.copytree(VOXELS / CHAIRS / model_id, root / CHAIRS / model_id)
+    (root / CHAIRS / OTHERS[1] / "model.binvox").write_bytes(b"not voxels")
+    split = _split_file(tmp_path, [OTHERS[0], OTHERS[2]], [OTHERS[1]], [])
+    world = R2N2World("chairs", str(root), str(tmp_path / "cache"), split_file=split, n_val=1, **SMALL)
+    with pytest.raises(ValueError, match=r"the val split kept no model of the 1 asked \(data.n_val=1\)"):
+        world.build()
+    short = R2N2World("chairs", str(root), str(tmp_path / "cache"), split_file=split, n_train=3, **SMALL)
+    short.build()
+    assert "the train split has 2 of the 3 models asked (data.n_train): the split holds only 2 models" in caplog.text
+
+
 def test_caps_take_the_first_ids_by_hash_and_a_missing_root_says_what_to_do(tmp_path):
     _require(VOXELS / CHAIRS)
     world = R2N2World("chairs", str(VOXELS), str(tmp_path), n_train=5, n_val=2, n_test=0)

@@ -53,6 +53,9 @@ class Pix3DWorld:
     Dataset with on-the-fly crops.
     """
 
+    # Config keys naming folders it reads: checked to exist before a run starts (training.validation).
+    INPUT_FOLDERS = ("root",)
+
     EVALUATION_ONLY = True  # every model is a test shape: train.py refuses it (training.validation)
 
     def __init__(

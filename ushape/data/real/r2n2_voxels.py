@@ -30,6 +30,7 @@ from skimage.measure import marching_cubes
 from trimesh.exchange.binvox import parse_binvox, voxel_from_binvox
 
 VOXEL_FILE = "model.binvox"
+BINVOX_MAGIC = b"#binvox"
 SMOOTHING_SIGMA = 0.5  # voxels; chosen on the shared chair (docs/r2n2.md)
 ISO_LEVEL = 0.7
 PADDING = 2
@@ -38,6 +39,18 @@ EXPECTED_LAYOUT = "<voxels_root>/<synset>/<model_id>/model.binvox (ShapeNetVox32
 
 class VoxelError(ValueError):
     """A model whose voxels cannot become a surface (missing, unreadable, empty)."""
+
+
+def error_text(err: BaseException) -> str:
+    """`Type: message`, with a %-style message whose arguments came apart (as trimesh raises some) filled in."""
+    if len(err.args) >= 2 and isinstance(err.args[0], str) and "%" in err.args[0]:
+        template, *rest = err.args
+        values = rest[0] if len(rest) == 1 and isinstance(rest[0], tuple) else tuple(rest)
+        try:
+            return f"{type(err).__name__}: {template % values}"
+        except (TypeError, ValueError):
+            pass
+    return f"{type(err).__name__}: {err}"
 
 
 def voxel_path(root: str | Path, synset: str, model_id: str) -> Path:
@@ -49,16 +62,26 @@ def read_r2n2_voxels(path: str | Path) -> tuple[np.ndarray, float]:
     path = Path(path)
     if not path.is_file():
         raise VoxelError(f"voxel file {path} is missing. Expected {EXPECTED_LAYOUT}")
-    try:
-        with open(path, "rb") as fh:
+    with open(path, "rb") as fh:
+        if not fh.read(len(BINVOX_MAGIC)) == BINVOX_MAGIC:
+            raise VoxelError(f"{path} is not a binvox file (it does not start with {BINVOX_MAGIC.decode()})")
+        fh.seek(0)
+        try:
             data = parse_binvox(fh)
-        dims = tuple(int(d) for d in data.shape)
+        except Exception as err:  # noqa: BLE001  (trimesh's header parser raises whatever the bytes make it)
+            raise VoxelError(f"cannot read {path}'s header: {error_text(err)}") from err
+    dims = tuple(int(d) for d in data.shape)
+    runs = np.asarray(data.rle_data[1::2], dtype=np.int64)
+    if len(data.rle_data) % 2 or runs.sum() != np.prod(dims):
+        raise VoxelError(
+            f"{path} is truncated or damaged: its run-length data covers {int(runs.sum())} of the header's "
+            f"{'x'.join(map(str, dims))} = {int(np.prod(dims))} voxels"
+        )
+    try:
         occupancy = np.asarray(voxel_from_binvox(data.rle_data, dims, axis_order="xzy").encoding.dense, bool)
-        side = float(data.scale)
-    except VoxelError:
-        raise
-    except Exception as err:  # noqa: BLE001  (a corrupt file fails in the header parser or the RLE decoder)
-        raise VoxelError(f"cannot read {path}: {type(err).__name__}: {err}") from err
+    except Exception as err:  # noqa: BLE001  (the RLE decoder)
+        raise VoxelError(f"cannot decode {path}'s voxels: {error_text(err)}") from err
+    side = float(data.scale)
     if occupancy.ndim != 3 or len(set(occupancy.shape)) != 1:
         raise VoxelError(f"{path}: expected a cubic grid, got {occupancy.shape}")
     if not np.isfinite(side) or side <= 0:

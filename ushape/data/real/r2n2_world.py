@@ -41,7 +41,6 @@ from ushape.data.real import r2n2_voxels, shapenet, shapenet_rendering
 from ushape.data.real.mesh_sdf import MeshProcessingError, normalise_mesh
 from ushape.data.real.shapenet_world import (
     _json_differs,
-    _read_skipped,
     _split_fingerprint,
     checked_renderings_root,
     write_splits,
@@ -49,7 +48,7 @@ from ushape.data.real.shapenet_world import (
 from ushape.data.rendering import render_views
 from ushape.data.sampling import sample_points, split_by_sign
 from ushape.data.shape_artifacts import artifact_problems
-from ushape.errors import MissingInputError
+from ushape.errors import InputError, MissingInputError
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +78,9 @@ class VoxelJob:
 
 class R2N2World:
     """Builds (once) and caches one category of the 3D-R2N2 bundle as a world; `build()` returns its index."""
+
+    # Config keys naming folders it reads: checked to exist before a run starts (training.validation).
+    INPUT_FOLDERS = ("voxels_root", "renderings_root")
 
     def __init__(
         self,
@@ -173,7 +175,9 @@ class R2N2World:
                 f"{self.voxels_root / self.synset} holds no model folders. {r2n2_voxels.EXPECTED_LAYOUT}"
             )
         planned = self.planned_splits(ids)
-        skipped = _read_skipped(root / SKIPPED_FILE)
+        # Skips are decided afresh each build (skipped.json only reports them): a model skipped before is tried
+        # again, so a voxel file mended or replaced since is used; one still bad costs a read and is listed again.
+        skipped: dict[str, str] = {}
         rendered = self.rendered_ids()
         known = set(ids)
         for mid in sorted(rendered - known):
@@ -193,6 +197,7 @@ class R2N2World:
                 skipped[model_id] = reason
                 atomic.write_json(root / SKIPPED_FILE, skipped)  # as they come: an interrupted build keeps them
         write_splits(light, planned, skipped, f"{self.synset} under {self.voxels_root}", "the voxel layout")
+        check_split_sizes(planned, skipped, self.config["caps"], root / SKIPPED_FILE)
         log.info(
             "R2N2 %s world %s ready in %.1fs (%d models, %d skipped)",
             self.synset,
@@ -211,6 +216,28 @@ class R2N2World:
 
     def _run(self, jobs: list[VoxelJob]) -> Iterable[tuple[str, Optional[str]]]:
         return run_jobs(process_voxel_model, jobs, self.num_workers, desc=f"R2N2 {self.synset}", unit="model")
+
+
+def check_split_sizes(
+    planned: dict[str, list[str]], skipped: dict[str, str], caps: dict[str, int | None], skipped_file: Path
+) -> None:
+    """A split that asked for shapes and kept none is an InputError; one that kept fewer than its cap is warned
+    about with the shortfall (its models were skipped, or the split has fewer models than the cap)."""
+    for split in SPLITS:
+        kept = sum(m not in skipped for m in planned[split])
+        cap = caps.get(split)
+        if cap and kept == 0:
+            raise InputError(
+                f"the {split} split kept no model of the {cap} asked (data.n_{split}={cap}): "
+                f"{len(planned[split])} planned, all skipped or missing (see {skipped_file})"
+            )
+        if cap and kept < cap:
+            dropped, short = len(planned[split]) - kept, cap - len(planned[split])
+            why = "; ".join(
+                ([f"{dropped} skipped (see {skipped_file})"] if dropped else [])
+                + ([f"the split holds only {len(planned[split])} models"] if short > 0 else [])
+            )
+            log.warning("the %s split has %d of the %d models asked (data.n_%s): %s", split, kept, cap, split, why)
 
 
 def process_voxel_model(job: VoxelJob) -> tuple[str, Optional[str]]:

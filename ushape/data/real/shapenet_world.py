@@ -64,6 +64,9 @@ class ModelJob:
 class ShapeNetWorld:
     """Builds (once) and caches one ShapeNet category as a world; `build()` returns its WorldIndex."""
 
+    # Config keys naming folders it reads: checked to exist before a run starts (training.validation).
+    INPUT_FOLDERS = ("root", "renderings_root")
+
     def __init__(
         self,
         category: str,
