@@ -2,6 +2,8 @@
 
 import multiprocessing as mp
 import os
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -99,6 +101,10 @@ def test_a_read_only_world_is_checked_and_its_damage_named(tmp_path, monkeypatch
     sdf = index.sdf_path(index.shape_ids("val")[0])
     sdf.write_bytes(sdf.read_bytes()[:100])
     monkeypatch.setattr("ushape.data.world.os.access", lambda path, mode: False)  # as a non-owner sees it
-    with pytest.raises(ValueError, match=f"read-only world .* {sdf} "):
+    with pytest.raises(ValueError, match=f"read-only world .* {sdf} .*keeping its name {index.root.name}"):
         open_world(index.root)
     assert sdf.stat().st_size == 100  # untouched
+    monkeypatch.undo()
+    # The advice works: a copy under the same name, in a writable folder, is repaired there.
+    copy = Path(shutil.copytree(index.root, tmp_path / "mine" / index.root.name))
+    assert open_world(copy).sdf_path(index.shape_ids("val")[0]).stat().st_size > 100

@@ -8,9 +8,11 @@ from ushape.training.demo_meshes import demo_digest
 from ushape.training.summary import print_summary
 
 
-def _demo(folder, views, trace, std):
+def _demo(folder, views, trace, std, calibration=None):
     folder.mkdir(parents=True)
     record = {
+        "fusion": "bayesian" if calibration is None else "shared",
+        "fusion_calibration": calibration,
         "views": [{}] * views,
         "fused": {"trace_var": trace},
         "mesh": {"std_mean": std},
@@ -36,8 +38,24 @@ def test_the_summary_prints_brackets_the_demo_scores_and_the_next_commands(tmp_p
     print_summary({"encoder_checkpoint": "ckpt", "demo": demo_digest(tmp_path / "meshes")}, tmp_path)
     out = capsys.readouterr().out
     assert "1 view(s), latent trace 0.520, mean vertex std 0.0240, IoU 0.41 CD 0.061 (its own code: IoU 0.62)" in out
-    assert "12 view(s), latent trace 0.040, mean vertex std 0.0065 ->" in out  # not scored: no figures
+    assert (
+        "12 view(s) fused with bayesian (views treated as independent), latent trace 0.040, mean vertex std 0.0065 ->"
+        in out
+    )
     assert f"python eval.py runs=[{tmp_path}]" in out and "python reconstruct.py" in out
+
+
+def test_an_uncalibrated_multi_view_demo_says_so_and_how_to_fit_it(tmp_path, capsys):
+    """The demo drew its 12-view mesh with the independent-views rule (trace 0.061 against 0.773 for one view, at
+    the same IoU) and never said so."""
+    _demo(tmp_path / "meshes" / "s_12views", 12, 0.06, 0.0065)
+    print_summary({"encoder_checkpoint": "ckpt", "demo": demo_digest(tmp_path / "meshes")}, tmp_path)
+    out = capsys.readouterr().out
+    assert "the 12-view std treats the views as independent" in out
+    assert f"python reconstruct.py --fit-temperature --run {tmp_path}" in out
+    _demo(tmp_path / "calibrated" / "s_12views", 12, 0.3, 0.01, calibration="shared error fitted on val")
+    print_summary({"encoder_checkpoint": "ckpt", "demo": demo_digest(tmp_path / "calibrated")}, tmp_path)
+    assert "treats the views as independent" not in capsys.readouterr().out
 
 
 def test_the_demo_is_scored_against_its_ground_truth_with_known_answers(tmp_path):

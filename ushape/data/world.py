@@ -230,7 +230,9 @@ def open_world(root: str | Path) -> WorldIndex:
         if problems:
             raise InputError(
                 f"the read-only world {index.root} has {len(problems)} missing or corrupt files, e.g. "
-                f"{'; '.join(problems[:3])}: copy it somewhere writable and evaluate the copy (it is repaired there)"
+                f"{'; '.join(problems[:3])}: copy the folder, keeping its name {index.root.name}, into a writable "
+                f"folder (cp -r {index.root} DEST/) and evaluate the copy, world=DEST/{index.root.name} (it is "
+                "repaired there; a renamed copy cannot be rebuilt)"
             )
         return index
     return world.build()

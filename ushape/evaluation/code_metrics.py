@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import math
 from pathlib import Path
 
@@ -33,6 +34,8 @@ from ushape.metrics.pix3d import (
     reference_from_mesh,
 )
 from ushape.propagation.field import surface_field
+
+log = logging.getLogger(__name__)
 
 # An empty reconstruction overlaps nothing; CD and EMD have no value.
 EMPTY_SCORES = {"iou": 0.0, "cd": math.nan, "emd": math.nan}
@@ -85,6 +88,7 @@ class Reconstructor:
         self.cache_dir = Path(cache_dir) if cache_dir is not None else None
         self._references: dict[str, ShapeReference] = {}
         self._scores: dict[str, dict] = {}
+        self.empty = 0  # codes whose mesh had no surface at this resolution (scored IoU 0)
 
     def reference(self, shape_id: str) -> ShapeReference:
         """The ground truth's normalised voxels and surface points (GT mesh: ray-parity inside test)."""
@@ -119,6 +123,15 @@ class Reconstructor:
             )
         except EmptySurfaceError:
             result = dict(EMPTY_SCORES)
+            self.empty += 1
+            if self.empty == 1:  # once per decoder and resolution: the tables count the rest
+                log.warning(
+                    "the mesh of a code for %s has no surface at %d^3 grid points (parts thinner than a grid step, "
+                    "2/%d, vanish) and scores IoU 0: a coarse protocol.resolution lowers every IoU; 64 is the default",
+                    shape_id,
+                    self.resolution,
+                    self.resolution,
+                )
         result["empty"] = bool(result["iou"] == 0.0 and math.isnan(result["cd"]))
         self._store(key, result)
         return result

@@ -45,6 +45,15 @@ def print_summary(summary: Mapping[str, Any], out_dir: Path) -> None:
                 f"latent trace {row['trace']:.3f}, "
                 f"mean vertex std {row['std_mean']:.4f}{_demo_scores(row)} -> {row['overview']}"
             )
+    uncalibrated = [
+        row for row in summary.get("demo", []) if row.get("views", 1) > 1 and not row.get("fusion_calibration")
+    ]
+    if uncalibrated:
+        lines.append(
+            f"Note:         the {uncalibrated[0]['views']}-view std treats the views as independent, so it shrinks as "
+            "views add up (over-confident on test shapes); fit the shared-error rule on val (~6 min): "
+            f"python reconstruct.py --fit-temperature --run {out_dir}   (then reconstruct.py and eval.py use it)"
+        )
     if "tensorboard" in summary:
         lines.append(f"Watch with:   tensorboard --logdir {summary['tensorboard']}")
     if "encoder_checkpoint" in summary:
