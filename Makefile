@@ -20,11 +20,12 @@ install: $(STAMP)
 demo: install
 	$(PY) train.py experiment=quickstart $(ARGS)
 
+# One pytest worker per core (pytest-xdist), each on one thread (tests/conftest.py).
 test: install
-	$(PY) -m pytest -q -m "not slow" $(ARGS)
+	$(PY) -m pytest -q -m "not slow" -n auto $(ARGS)
 
 test-slow: install
-	$(PY) -m pytest -q -m slow $(ARGS)
+	$(PY) -m pytest -q -m slow -n auto $(ARGS)
 
 lint: install
 	$(PY) -m ruff check .

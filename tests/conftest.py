@@ -2,7 +2,8 @@
 
 import os
 
-os.environ.setdefault("OMP_NUM_THREADS", "2")
+# One thread per pytest-xdist worker (`make test` runs one worker per core), two without xdist.
+os.environ.setdefault("OMP_NUM_THREADS", "1" if os.environ.get("PYTEST_XDIST_WORKER") else "2")
 
 import ushape  # noqa: E402,F401  (must precede torchvision/lightning imports)
 

@@ -35,6 +35,7 @@ def _seconds(cell):
     return float(value) * (1e-3 if unit == "ms" else 1.0)
 
 
+@pytest.mark.slow  # 46 s on 2 cores: whole commands end to end; `make test-slow` and CI run it
 def test_quick_bench_writes_the_whole_table(tmp_path, capsys):
     out = tmp_path / "bench.md"
     assert (
@@ -150,6 +151,7 @@ def test_fitted_decoder_has_the_chair_surface_and_is_cached(tmp_path):
         assert torch.equal(a, b)
 
 
+@pytest.mark.slow  # 22 s on 2 cores: whole commands end to end; `make test-slow` and CI run it
 def test_precision_only_bench_has_the_three_rows_per_decoder_and_their_ratios(tmp_path):
     out = tmp_path / "bench.md"
     argv = ["--quick", "--resolution", "16", "--precision-only", "--repeats", "2", "--depth-views", "2"]

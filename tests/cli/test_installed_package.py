@@ -63,6 +63,7 @@ def test_the_wheel_carries_the_configs(installed):
     assert not (site / "ushape" / "conf").is_symlink()
 
 
+@pytest.mark.slow  # 57 s on 2 cores: whole commands end to end; `make test-slow` and CI run it
 def test_reconstruct_eval_and_bench_run_from_the_installed_package(installed, tmp_path):
     _, work = installed
     world = build_sphere_world(tmp_path / "world")

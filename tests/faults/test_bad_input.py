@@ -79,7 +79,7 @@ def test_a_bad_value_is_named_before_any_data_is_made(tmp_path, override, named)
 @pytest.mark.parametrize(
     "layout, named",
     [
-        ("missing", "ShapeNet root {root} does not exist"),
+        ("missing", "data.root={root} is not a folder: pass the dataset's folder"),
         ("empty", "{root} has no synset folder 03001627"),
         ("wrong", "found folders ['foo']. Point data.root at the folder that holds the synset folders"),
     ],
@@ -92,7 +92,8 @@ def test_a_shapenet_root_that_is_not_one_is_named(tmp_path, layout, named):
         (root / "foo").mkdir()
     result = run_command(tmp_path, "train.py", "data=shapenet", f"data.root={root}", timeout=300)
     line = error_line(result)
-    assert line.startswith("error: data: ") and named.format(root=root) in line, line
+    prefix = "error: invalid config, nothing was run: " if layout == "missing" else "error: data: "
+    assert line.startswith(prefix) and named.format(root=root) in line, line
     assert not (tmp_path / "outputs" / "runs").exists() or files_under(tmp_path / "outputs" / "runs") == []
 
 

@@ -4,6 +4,7 @@ categories end to end on CPU with tiny limits (the same commands a GPU run takes
 import json
 from pathlib import Path
 
+import pytest
 import torch
 from hydra import compose, initialize_config_dir
 from repo_commands import run_command
@@ -76,6 +77,7 @@ def test_stage1_trains_in_fp32_under_the_gpu_trainer():
     assert stage_trainer(asked.trainer, asked.stage2)["precision"] == "32-true"
 
 
+@pytest.mark.slow  # 18 s on 2 cores: whole commands end to end; `make test-slow` and CI run it
 def test_paper_preset_trains_both_categories_end_to_end(tmp_path):
     result = run_command(tmp_path, "train.py", "-m", "experiment=paper", "category=chairs,tables", *TINY_PAPER)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]

@@ -11,6 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import torch
 
 from ushape.training.train import is_main_process
@@ -72,6 +73,7 @@ def test_rank_comes_from_the_launchers_environment(monkeypatch):
     assert not is_main_process()
 
 
+@pytest.mark.slow  # 18 s on 2 cores: whole commands end to end; `make test-slow` and CI run it
 def test_both_stages_train_under_ddp_with_two_cpu_processes(tmp_path):
     env = {**os.environ, "USHAPE_ROOT": str(tmp_path)}
     for name in ("RANK", "LOCAL_RANK", "NODE_RANK", "WORLD_SIZE", "SLURM_PROCID"):

@@ -3,6 +3,7 @@
 import json
 from pathlib import Path
 
+import pytest
 import torch
 from repo_commands import run_command
 from tiny_runs import tiny_train
@@ -10,6 +11,7 @@ from tiny_runs import tiny_train
 TINY = tiny_train()
 
 
+@pytest.mark.slow  # 24 s on 2 cores: whole commands end to end; `make test-slow` and CI run it
 def test_sweep_over_losses_trains_one_decoder_and_two_encoders(tmp_path):
     """Both encoders in the PCA latent basis: the rebased stage-1 folder is also written once and shared.
     The optimizer, fusion and callbacks groups reach what they configure."""

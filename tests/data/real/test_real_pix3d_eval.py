@@ -157,6 +157,7 @@ def run_script(args, env):
     return result.stdout
 
 
+@pytest.mark.slow  # 34 s on 2 cores: whole commands end to end; `make test-slow` and CI run it
 def test_eval_py_on_pix3d_writes_tables_1_and_3(pix3d_sample, tmp_path):
     root = write_pix3d_tree(pix3d_sample, tmp_path / "pix3d")
     env = {**os.environ, "USHAPE_ROOT": str(tmp_path)}

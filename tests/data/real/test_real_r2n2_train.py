@@ -13,6 +13,7 @@ SHARED = next((p / "shared" / "data" for p in _HERE.parents if (p / "shared" / "
 VOXELS = SHARED / "ShapeNetVox32"
 
 
+@pytest.mark.slow  # 16 s on 2 cores: whole commands end to end; `make test-slow` and CI run it
 def test_train_py_trains_both_stages_on_r2n2_voxels(tmp_path):
     if not (VOXELS / "03001627").is_dir():
         pytest.skip(f"shared voxels not present at {VOXELS}")
