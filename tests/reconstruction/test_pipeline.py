@@ -236,10 +236,11 @@ def test_refine_without_cameras_says_so_and_keeps_the_fused_code(tiny_run, spher
         )
 
 
-def test_cli_camera_file_and_masks_need_refine(tiny_run, tmp_path, capsys):
+def test_cli_camera_file_needs_refine(tiny_run, tmp_path, capsys):
     views = sorted((tiny_run["world"] / "renders" / "test_0").glob("*.png"))[:1]
-    args = [*map(str, views), "--run", str(tiny_run["run"]), "--out", str(tmp_path / "o"), "--masks", str(views[0])]
-    assert main(args) == 2
+    np.savez(tmp_path / "cams.npz", K=np.eye(3)[None], world_to_cam=np.eye(4)[None])
+    args = [*map(str, views), "--run", str(tiny_run["run"]), "--out", str(tmp_path / "o")]
+    assert main([*args, "--cameras", str(tmp_path / "cams.npz")]) == 2
     assert "add --refine" in capsys.readouterr().err
 
 

@@ -54,7 +54,9 @@ def _save(path, array, mode):
 
 def test_image_modes_and_sizes_become_model_inputs(predictor, tmp_path):
     rng = np.random.default_rng(1)
-    rgb = _save(tmp_path / "rgb.jpg", rng.integers(0, 256, (30, 50, 3)), "RGB")
+    picture = np.full((30, 50, 3), 255)
+    picture[10:20, 20:30] = rng.integers(0, 256, (10, 10, 3))  # an object on a plain background, no alpha
+    rgb = _save(tmp_path / "rgb.png", picture, "RGB")
     gray = _save(tmp_path / "gray.png", np.full((7, 9), 128), "L")
     alpha = np.zeros((20, 20, 4))
     alpha[..., 0] = 255  # red, but fully transparent: must come out as the white background

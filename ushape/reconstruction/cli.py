@@ -134,7 +134,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="npz with K [V,3,3], world_to_cam [V,4,4] (optional masks, depth) per input image, in order "
         "(default: a render's own views.npz)",
     )
-    parser.add_argument("--masks", nargs="+", default=None, help="one mask image per input (default: alpha)")
+    parser.add_argument(
+        "--masks",
+        nargs="+",
+        default=None,
+        help="one mask image per input, white = object (default: each image's alpha): cuts the object out for the "
+        "encoder, and is what --refine fits",
+    )
     parser.add_argument("--refine-size", type=int, default=32, help="rays per image side the refinement compares")
     parser.add_argument(
         "--refine-starts",
@@ -213,15 +219,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         settings = settings_from(args)
         check_settings(settings)
         out = check_out_dir(Path(args.out) if args.out else DEFAULT_OUT / time.strftime("%Y-%m-%d_%H-%M-%S"))
-        if (args.cameras or args.masks) and not args.refine:
-            raise ValueError("--cameras and --masks are read by the refinement: add --refine masks|depth")
+        if args.cameras and not args.refine:
+            raise ValueError("--cameras is read by the refinement: add --refine masks|depth")
         files = collect_inputs(args.inputs)
         given = args.cameras or args.masks
         observations = input_views(files, args.cameras, args.masks) if args.refine and given else None
         fusion = build_fusion(args.fusion, args.k) if args.fusion else None
         predictor = predictor_of(args, temperature=args.temperature)
         fusion = default_fusion(predictor, args.k) if fusion is None else calibrate_fusion(fusion, predictor)
-        summary = reconstruct(predictor, files, fusion, out, settings, observations)
+        summary = reconstruct(predictor, files, fusion, out, settings, observations, args.masks)
     except EmptySurfaceError as err:
         print(
             f"error: the fused code's SDF has no surface in [-1, 1]^3 ({err}); try other views or --fusion",

@@ -29,7 +29,7 @@ from ushape.reconstruction.mesh_std import Fusion, mesh_std, sdf_distance_scale,
 from ushape.reconstruction.out_dir import SUMMARY_FILE, claimed
 from ushape.reconstruction.predictor import Predictor
 from ushape.reconstruction.refine_calibration import read_refinement_calibration
-from ushape.reconstruction.refined_code import refined
+from ushape.reconstruction.refined_code import r2n2_frame_of, refined
 from ushape.reconstruction.settings import ReconstructionSettings
 from ushape.reconstruction.view_depth import depth_maps, view_camera, write_depth_maps
 from ushape.reconstruction.visibility import hidden_over_visible
@@ -93,10 +93,12 @@ def encode_views(
     settings: ReconstructionSettings,
     observations: Sequence[ObservedView | None] | None,
     timer: Timer,
+    masks: Sequence[str | Path] | None = None,
 ) -> Encoded:
-    """Load, encode and fuse the views; refine the fused code on them where settings.refine asks."""
+    """Load, encode and fuse the views (cut out by their masks where given); refine the fused code on them where
+    settings.refine asks."""
     with timer("load_images"):
-        images, paths, skipped = predictor.load_images(list(inputs))
+        images, paths, skipped = predictor.load_images(list(inputs), masks)
     with timer("encode"):
         mu, var = predictor.encode(images)
     with timer("fuse"):
@@ -106,7 +108,7 @@ def encode_views(
         with timer("refine"):
             calibration = read_refinement_calibration(predictor.checkpoint, settings.refine)
             encoded.fused, encoded.refinement, encoded.refined_views = refined(
-                predictor.decoder, fused, inputs, paths, observations, settings, calibration
+                predictor.decoder, fused, inputs, paths, observations, settings, calibration, r2n2_frame_of(predictor)
             )
     return encoded
 
@@ -118,8 +120,11 @@ def reconstruct(
     out_dir: str | Path,
     settings: ReconstructionSettings = ReconstructionSettings(),
     observations: Sequence[ObservedView | None] | None = None,
+    masks: Sequence[str | Path] | None = None,
 ) -> dict[str, Any]:
     """Run the whole reconstruction of one object from its views and write every output; returns the summary.
+
+    masks: one mask file per input (white = object): the object is cut out of its image by it before encoding.
 
     With settings.refine, the fused code is refined on the views' masks (and depth): `observations`, one
     per input image (None: no camera), or by default the cameras, masks and depth of renders of the world.
@@ -127,7 +132,7 @@ def reconstruct(
     """
     check_settings(settings)
     timer, generator = Timer(), torch.Generator().manual_seed(settings.seed)
-    encoded = encode_views(predictor, inputs, fusion, settings, observations, timer)
+    encoded = encode_views(predictor, inputs, fusion, settings, observations, timer, masks)
     with claimed(out_dir):  # made once the views are read: unreadable inputs leave nothing behind
         return write_outputs(predictor, fusion, settings, encoded, Path(out_dir), timer, generator)
 

@@ -28,6 +28,8 @@ from torch import Tensor, nn
 from ushape import atomic
 from ushape.checkpoints import load_checkpoint
 from ushape.data.augment import IMAGE_SUFFIXES, CompositeBackground, load_rgba, resize
+from ushape.data.layout import VIEWS_FILE
+from ushape.data.real.shapenet_rendering import METADATA_FILE as R2N2_METADATA
 from ushape.errors import InputError, MissingInputError
 from ushape.recalibration.shared_error import SharedError
 from ushape.recalibration.temperature import apply_temperature
@@ -183,6 +185,9 @@ class Predictor:
     mask_mode: str = "gt_mask"
     background_value: float = 1.0
     world: Path | None = field(default=None)
+    # Where R2N2's frame sits in the model's, (r2n2_centre [3], r2n2_scale), for R2N2 renders' cameras; None:
+    # the run's world tells (`refinement.inputs.typical_r2n2_frame`), a shipped model's model.json says
+    r2n2_frame: tuple | None = None
 
     @property
     def decoder(self) -> nn.Module:
@@ -212,10 +217,19 @@ class Predictor:
         composite = CompositeBackground("gt_mask", self.background_value)
         return composite(resize(pad_square(rgba), self.image_size))
 
-    def load_images(self, paths: Sequence[str | Path]) -> tuple[Tensor, list[Path], list[tuple[Path, str]]]:
-        """(images [V, 3, S, S], the paths read, [(path, why)] skipped); a ValueError if none is readable."""
+    def load_images(
+        self, paths: Sequence[str | Path], masks: Sequence[str | Path] | None = None, reframe: bool = True
+    ) -> tuple[Tensor, list[Path], list[tuple[Path, str]]]:
+        """(images [V, 3, S, S], the paths read, [(path, why)] skipped); a ValueError if none is readable.
+
+        masks: one mask file per path (white = object), cutting the object out where the image has no alpha.
+        reframe: a photo (not a render) whose object is framed unlike the training renders is cropped and
+        padded to their framing (`frame_object`); renders are taken as they are.
+        """
+        if masks is not None and len(masks) != len(paths):
+            raise InputError(f"{len(masks)} mask files for {len(paths)} images: pass one mask per image, in order")
         images, kept, skipped = [], [], []
-        for path in paths:
+        for i, path in enumerate(paths):
             try:
                 rgba = load_rgba(path)
                 if max(rgba.shape[-2:]) * SMALLEST_UPSCALE < self.image_size:
@@ -226,6 +240,11 @@ class Predictor:
                         rgba.shape[-2],
                         self.image_size,
                     )
+                if masks is not None:
+                    rgba = cut_out(rgba, load_rgba(masks[i])[:3].mean(0) > 0.5, f"mask {masks[i]} of {path}")
+                check_cut_out(rgba, path)
+                if reframe and not is_render(path):
+                    rgba = frame_object(rgba)
                 images.append(self.prepare(rgba))
                 kept.append(Path(path))
             except (ValueError, FileNotFoundError) as err:
@@ -237,6 +256,70 @@ class Predictor:
                 + "; ".join(f"{p}: {why}" for p, why in skipped)
             )
         return torch.stack(images), kept, skipped
+
+
+# How the training renders frame the object (R2N2's protocol). Measured on the r2n2 chairs and tables worlds
+# (240 renders each): the object's bounding box spans 0.51-0.84 of the image side (5th-95th percentile,
+# median 0.65), its centre within 0.09 of the image centre (95th percentile). A photo outside these bounds is
+# cropped and padded so that its object spans FRAMED_SPAN about the centre.
+FRAMED_SPANS, FRAMED_OFFSET, FRAMED_SPAN = (0.45, 0.90), 0.15, 0.65
+# A border whose colours vary less than this (std over its pixels, RGB in [0, 1]) is a plain background.
+PLAIN_BORDER_STD = 0.03
+
+
+def is_render(path: str | Path) -> bool:
+    """A render with its camera beside it (ours: views.npz; R2N2's: rendering_metadata.txt), named by its view."""
+    path = Path(path)
+    return path.stem.isdigit() and any((path.parent / name).is_file() for name in (VIEWS_FILE, R2N2_METADATA))
+
+
+def cut_out(rgba: Tensor, mask: Tensor, source: str) -> Tensor:
+    """Premultiplied RGBA [4, H, W] with alpha = mask [H, W] bool (the object), the rest transparent."""
+    if tuple(mask.shape) != tuple(rgba.shape[-2:]):
+        raise InputError(
+            f"{source} is {mask.shape[1]}x{mask.shape[0]} pixels, the image {rgba.shape[2]}x{rgba.shape[1]}: "
+            "pass a mask of the image's size"
+        )
+    alpha = mask.float()
+    straight = rgba[:3] / rgba[3:].clamp(min=1e-6)
+    return torch.cat([straight * alpha, alpha[None]])
+
+
+def check_cut_out(rgba: Tensor, path: str | Path) -> None:
+    """An InputError for a photo the model cannot read: opaque (no alpha, no mask) on a background that is not
+    plain. The model was trained on objects cut out from their background."""
+    if float(rgba[3].min()) < 0.99:
+        return
+    border = torch.cat([rgba[:3, 0], rgba[:3, -1], rgba[:3, :, 0], rgba[:3, :, -1]], dim=1)  # [3, P]
+    if float(border.std(dim=1).max()) <= PLAIN_BORDER_STD:
+        return
+    raise InputError(
+        f"{path} has no alpha channel and no mask, on a background that is not plain: the model reads objects "
+        "cut out from their background. Pass a mask (--masks MASK.png, white = object, one per image) or an RGBA "
+        "PNG whose alpha marks the object"
+    )
+
+
+def frame_object(rgba: Tensor) -> Tensor:
+    """Premultiplied RGBA [4, H, W] -> a square [4, S, S] framing the object (alpha > 0.5) as the training renders
+    do: unchanged but padded square where it already does (`FRAMED_SPANS`, `FRAMED_OFFSET`), else a square about
+    the object's box spanning it by FRAMED_SPAN, transparent where it leaves the image."""
+    square = pad_square(rgba)
+    inside = square[3] > 0.5
+    if not bool(inside.any()):
+        return square
+    side = square.shape[-1]
+    rows, cols = inside.any(1).nonzero()[:, 0], inside.any(0).nonzero()[:, 0]
+    box = max(int(rows[-1] - rows[0]) + 1, int(cols[-1] - cols[0]) + 1)
+    centre = ((float(rows[0] + rows[-1]) + 1) / 2, (float(cols[0] + cols[-1]) + 1) / 2)
+    offset = max(abs(centre[0] - side / 2), abs(centre[1] - side / 2)) / side
+    if FRAMED_SPANS[0] <= box / side <= FRAMED_SPANS[1] and offset <= FRAMED_OFFSET:
+        return square
+    crop = max(1, round(box / FRAMED_SPAN))
+    top, left = round(centre[0] - crop / 2), round(centre[1] - crop / 2)
+    padded = F.pad(square, (max(0, -left), max(0, left + crop - side), max(0, -top), max(0, top + crop - side)))
+    top, left = max(0, top), max(0, left)
+    return padded[:, top : top + crop, left : left + crop]
 
 
 def pad_square(rgba: Tensor) -> Tensor:

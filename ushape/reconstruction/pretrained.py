@@ -24,6 +24,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from ushape import atomic
@@ -39,6 +40,7 @@ from ushape.reconstruction.predictor import (
     trained_decoder,
 )
 from ushape.reconstruction.refine_calibration import CALIBRATION_FILE
+from ushape.reconstruction.refined_code import r2n2_frame_of
 
 PRETRAINED_DIR = Path(__file__).resolve().parents[1] / "pretrained"
 PREFIX = "pretrained:"  # `--run pretrained:chairs` is `--model chairs`
@@ -107,7 +109,15 @@ def load_model_folder(folder: Path, temperature: bool = True) -> Predictor:
         sdf_temperature=sdf_t,
         mask_mode=str(record.get("mask_mode", "gt_mask")),
         world=None,
+        r2n2_frame=frame_from_record(record.get("r2n2_frame")),
     )
+
+
+def frame_from_record(record: dict | None) -> tuple | None:
+    """model.json's {"centre": [3], "scale": s} as (r2n2_centre [3], r2n2_scale); None without one."""
+    if not record:
+        return None
+    return np.asarray(record["centre"], dtype=np.float64), float(record["scale"])
 
 
 def backbone_is_the_packages(model: torch.nn.Module, encoder_config: dict) -> bool:
@@ -153,9 +163,18 @@ def export_pretrained(run: str | Path, name: str, out_root: str | Path = PRETRAI
         if (checkpoint.parent / fit).is_file():
             shutil.copy2(checkpoint.parent / fit, staging / fit)
     image_size, mask_mode = input_settings(blob, run_config(run_dir))
+    frame = r2n2_frame_of(predictor)
+    frame_record = None if frame is None else {"centre": frame[0].tolist(), "scale": frame[1]}
     atomic.write_json(
         staging / MODEL_FILE,
-        {"name": name, "image_size": image_size, "mask_mode": mask_mode, "source_run": str(run), **record},
+        {
+            "name": name,
+            "image_size": image_size,
+            "mask_mode": mask_mode,
+            "r2n2_frame": frame_record,
+            "source_run": str(run),
+            **record,
+        },
     )
     check_export(predictor, staging)
     shutil.rmtree(folder, ignore_errors=True)

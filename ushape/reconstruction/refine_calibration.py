@@ -107,7 +107,7 @@ def refined_val_shapes(
     refined, fallbacks = [], 0
     for shape_id in shapes:
         files = view_files(world.root, shape_id)
-        images, _, _ = predictor.load_images(files)
+        images, _, _ = predictor.load_images(files, reframe=False)  # the world's renders, as evaluated
         mu, var = predictor.encode(images)
         points, sdf_true = sdf_points(world, shape_id, n_points)
         for n in VIEW_COUNTS:

@@ -9,10 +9,12 @@ from typing import Any, Sequence
 
 import torch
 
+from ushape.data.layout import WorldIndex
 from ushape.fusion.rules import FusedCode
+from ushape.reconstruction.predictor import Predictor
 from ushape.reconstruction.settings import ReconstructionSettings
 from ushape.refinement import ObservedView, refine, refine_settings
-from ushape.refinement.inputs import input_views
+from ushape.refinement.inputs import R2N2Frame, input_views, typical_r2n2_frame
 
 log = logging.getLogger(__name__)
 # What summary.json's refinement record keeps of the calibration it applied (reconstruct.py --fit-refinement).
@@ -27,12 +29,13 @@ def refined(
     observations: Sequence[ObservedView | None] | None,  # one per input
     settings: ReconstructionSettings,
     calibration: dict[str, Any] | None = None,  # --fit-refinement's fit for this mode (None: none)
+    r2n2_frame: R2N2Frame | None = None,  # R2N2's frame in the model's, for R2N2 renders' cameras
 ) -> tuple[FusedCode, dict[str, Any], list[ObservedView]]:
     """The fused code refined on the views (FusedCode with var the full covariance [D, D]), its record and the
     views it was refined on; with a calibration, the posterior at its information scale s, and the record
     carries the calibration."""
     if observations is None:
-        views = input_views(paths)
+        views = input_views(paths, r2n2_frame=r2n2_frame)
     elif len(observations) != len(inputs):
         raise ValueError(f"{len(observations)} observed views for {len(inputs)} input images: pass one per image")
     else:
@@ -60,3 +63,12 @@ def refined(
     if posterior.fallback is not None:  # the prior exactly, in its own (diagonal) form
         return fused, record, views
     return FusedCode(posterior.mu, posterior.cov, fused.kept), record, views
+
+
+def r2n2_frame_of(predictor: Predictor) -> R2N2Frame | None:
+    """Where R2N2's frame sits in the predictor's model: its own record (a shipped model), else its run's world."""
+    if predictor.r2n2_frame is not None:
+        return predictor.r2n2_frame
+    if predictor.world is not None and (Path(predictor.world) / "config.json").is_file():
+        return typical_r2n2_frame(WorldIndex.load(predictor.world))
+    return None
