@@ -42,7 +42,7 @@ def test_active_names_what_is_wrong(sphere_world, tmp_path, capsys):
 def spied(sphere_world, tmp_path, monkeypatch):
     predictor = FakePredictor(tmp_path / "fake.ckpt")
     predictor.world = sphere_world.root
-    monkeypatch.setattr(command, "load_predictor", lambda *args, **kwargs: predictor)
+    monkeypatch.setattr(command, "open_model", lambda *args, **kwargs: predictor)
     seen = {}
     loop = command.active_reconstruction
 

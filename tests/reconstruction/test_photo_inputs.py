@@ -72,7 +72,7 @@ def test_renders_are_recognised_by_the_camera_file_beside_them(tmp_path):
 def test_a_photo_on_a_busy_background_needs_a_mask_and_runs_with_one(
     tiny_run, sphere_predictor, tmp_path, capsys, monkeypatch
 ):
-    monkeypatch.setattr("ushape.reconstruction.cli.load_predictor", lambda *args, **kwargs: sphere_predictor)
+    monkeypatch.setattr("ushape.reconstruction.cli.open_model", lambda *args, **kwargs: sphere_predictor)
     rng = np.random.default_rng(0)
     photo = tmp_path / "photo.jpg"
     Image.fromarray(rng.integers(0, 255, (90, 120, 3), dtype=np.uint8)).save(photo)

@@ -111,7 +111,7 @@ def test_depth_method_mc_and_implicit_both_run_and_the_summary_says_which(
     tiny_run, sphere_predictor, tmp_path, monkeypatch
 ):
     views = sorted((tiny_run["world"] / "renders" / "test_0").glob("*.png"))[:2]
-    monkeypatch.setattr("ushape.reconstruction.cli.load_predictor", lambda *args, **kwargs: sphere_predictor)
+    monkeypatch.setattr("ushape.reconstruction.cli.open_model", lambda *args, **kwargs: sphere_predictor)
     summaries = {}
     for method in ("mc", "implicit"):
         out = tmp_path / method

@@ -32,7 +32,7 @@ def render(tiny_run, tmp_path):
 
 @pytest.fixture
 def run(tiny_run, sphere_predictor, monkeypatch):
-    monkeypatch.setattr("ushape.reconstruction.cli.load_predictor", lambda *args, **kwargs: sphere_predictor)
+    monkeypatch.setattr("ushape.reconstruction.cli.open_model", lambda *args, **kwargs: sphere_predictor)
     return tiny_run["run"]
 
 

@@ -35,7 +35,7 @@ from ushape.planning.figures import sequence_figure, step_surfaces
 from ushape.planning.observers import OBSERVERS, build_observer
 from ushape.planning.strategies import STRATEGIES
 from ushape.reconstruction.export import write_mesh_files
-from ushape.reconstruction.predictor import load_predictor
+from ushape.reconstruction.pretrained import PREFIX, open_model
 
 DEFAULT_OUT = Path("outputs") / "active"
 
@@ -45,6 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     source = parser.add_mutually_exclusive_group()
     source.add_argument("--run", help="run folder of `python train.py` (default: the newest encoder run)")
     source.add_argument("--checkpoint", help="an encoder .ckpt instead of a run folder")
+    source.add_argument("--model", help="a model shipped with ushape, by name (needs --world: its data world)")
     parser.add_argument("--root", default=".", help="where outputs/runs is searched for the newest run")
     parser.add_argument("--world", default=None, help="the world folder (default: the run's own)")
     parser.add_argument("--split", default="test", help="the split the shape is taken from")
@@ -95,7 +96,8 @@ def run_active(args: argparse.Namespace) -> dict:
     """Run one sequence and write its files; returns the summary written to summary.json."""
     if args.views < 1:
         raise ValueError(f"--views must be >= 1, got {args.views}")
-    predictor = load_predictor(args.checkpoint or args.run, temperature=args.temperature, root=args.root)
+    source = f"{PREFIX}{args.model}" if args.model else args.checkpoint or args.run
+    predictor = open_model(source, temperature=args.temperature, root=args.root)
     world_dir = args.world or predictor.world
     if world_dir is None:
         raise FileNotFoundError("the run names no data world (no run.json): pass --world <world folder>")

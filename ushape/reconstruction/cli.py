@@ -35,8 +35,8 @@ from ushape.propagation.mesh import METHODS
 from ushape.reconstruction.calibrated_fusion import calibrate_fusion, default_fusion
 from ushape.reconstruction.out_dir import check_out_dir
 from ushape.reconstruction.pipeline import check_settings, reconstruct
-from ushape.reconstruction.predictor import collect_inputs, load_predictor
-from ushape.reconstruction.pretrained import available_models, load_pretrained
+from ushape.reconstruction.predictor import collect_inputs
+from ushape.reconstruction.pretrained import PREFIX, available_models, open_model
 from ushape.reconstruction.refine_calibration import FIT_SHAPES, fit_and_store_refinement_calibration
 from ushape.reconstruction.settings import ReconstructionSettings
 from ushape.reconstruction.temperature_store import fit_and_store_temperature
@@ -163,9 +163,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def predictor_of(args: argparse.Namespace, temperature: bool):
     """The model the flags name: a shipped one (--model, always calibrated), a run or checkpoint, or the newest run."""
-    if args.model:
-        return load_pretrained(args.model, temperature=True)
-    return load_predictor(args.checkpoint or args.run, temperature=temperature, root=args.root)
+    source = f"{PREFIX}{args.model}" if args.model else args.checkpoint or args.run
+    return open_model(source, temperature=temperature, root=args.root)
 
 
 def settings_from(args: argparse.Namespace) -> ReconstructionSettings:

@@ -77,6 +77,16 @@ def model_record(name: str) -> dict[str, Any]:
     return atomic.read_json_object(model_dir(name) / MODEL_FILE, DAMAGED)
 
 
+def open_model(source: str | Path | None, temperature: bool = False, root: str | Path = ".") -> Predictor:
+    """The Predictor a command names: `pretrained:<name>` a shipped model (calibrated), else a run folder or
+    checkpoint (None: the newest run under <root>/outputs/runs)."""
+    from ushape.reconstruction.predictor import load_predictor
+
+    if source is not None and str(source).startswith(PREFIX):
+        return load_pretrained(str(source), temperature=True)
+    return load_predictor(source, temperature=temperature, root=root)
+
+
 def load_pretrained(name: str, temperature: bool = True) -> Predictor:
     """The Predictor of a shipped model; temperature=True (its default: the model ships calibrated) applies
     its fitted T and T_sdf."""
