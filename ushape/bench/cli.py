@@ -6,6 +6,7 @@
     python bench.py --decoder-dir DIR     time a trained decoder folder in place of the fitted `small`
     python bench.py --precision-only      only the mesh with uncertainty in fp32 / bf16 / auto, with the contract
     python bench.py --loaders-world DIR   also the loaders' per-core rates against a GPU's needs (a world folder)
+    python bench.py --training            training against its floors (ushape.bench.training)
 
 Untrained decoders are fitted to a procedural chair first (--fit-steps, cached), so coarse-to-fine,
 the narrow band and the depth rows see one surface as with a trained decoder. The 8 x 512 decoder's
@@ -67,8 +68,28 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--loaders-world", default=None, help="world folder: add stage 1/2 loader throughput (ushape.bench.loaders)"
     )
+    parser.add_argument(
+        "--training",
+        action="store_true",
+        help="instead: the training bench (stage-1 step against its bare-loop and GEMM floors, the loader, latent "
+        "optimisation, feature extraction; 1 and 2 threads, fp32 and bf16); with --quick a smoke run",
+    )
     parser.add_argument("--out", default=None, help=f"report file (default {DEFAULT_OUT_DIR}/bench_<date>.md)")
     return parser
+
+
+def training_main(args: argparse.Namespace) -> int:
+    """`bench.py --training`: every row of ushape.bench.training, printed and written (.md and .json)."""
+    from ushape.bench.training import machine, quick_settings, training_report, training_rows, write_training_report
+
+    about = machine()
+    print(f"training bench on {about['cpu']}; precision auto picks {about['auto']}")
+    started = time.time()
+    rows = training_rows(quick_settings()) if args.quick else training_rows()
+    out = Path(args.out) if args.out else DEFAULT_OUT_DIR / f"training_{time.strftime('%Y-%m-%d')}.md"
+    write_training_report(rows, about, out)
+    print(training_report(rows, about) + f"\nTotal {time.time() - started:.0f} s; written to {out}")
+    return 0
 
 
 def loader_section(world: str, quick: bool) -> str:
@@ -80,6 +101,8 @@ def loader_section(world: str, quick: bool) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.training:
+        return training_main(args)
     if args.deepsdf_fraction <= 0 or args.deepsdf_fraction > 1:
         raise InputError(f"--deepsdf-fraction must be in (0, 1], got {args.deepsdf_fraction}")
     resolution = args.resolution or (32 if args.quick else 128)

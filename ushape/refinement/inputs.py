@@ -128,8 +128,8 @@ def typical_r2n2_frame(world: WorldIndex, split: str = "train", limit: int = 200
     """Where R2N2's frame sits in a world's frame for a typical shape: the median (r2n2_centre [3], r2n2_scale)
     of the first `limit` shapes' views.npz; None where the world stores none. R2N2's frame is each model's
     own (box centre, unit diagonal) and the world rescales each shape to the unit sphere, so the scale varies
-    by shape (chairs: 5-95th percentile within -3 % / +12 % of the median): cameras placed with the typical
-    frame see an unseen object up to that much too large or small."""
+    by shape (chairs: 5th-95th percentile of r2n2_scale within -11 % / +3 % of the median): cameras placed
+    with the typical frame see an unseen object up to that much too large or small."""
     centres, scales = [], []
     for shape_id in world.shape_ids(split)[:limit]:
         try:
