@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# The shipped real-shape models, reproduced from the 3D-R2N2 voxels (docs/pretrained.md):
+#
+#   nohup bash notebooks/train_pretrained.sh chairs tables > outputs/pretrained_train.log 2>&1 &
+#
+# Per category, one job at a time on all cores (two 1-thread jobs side by side ran 2.0-2.2 steps/s each,
+# one 2-thread job ~5): the r2n2 world (1,000 / 100 / 100 shapes, ~5 min), stage 1 (200 epochs of the
+# 4 x 256 decoder, ~45 min at 2 threads on an AMD EPYC), then stage 2 (the frozen-feature ES heads).
+# Every step resumes where it stopped: rerun the same command. A stage-1 folder committed under
+# ushape/pretrained/<category>/decoder/ (decoder, codes, DONE) is copied into outputs/decoders/ first,
+# so a fresh machine goes on with stage 2 instead of training stage 1 again.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+VOXELS=${VOXELS:-$(realpath ../shared/data/ShapeNetVox32)}
+THREADS=${THREADS:-$(nproc)}
+COMMON=(experiment=r2n2_cpu_2h "data.voxels_root=$VOXELS" data.n_val=100 data.n_test=100 data.num_workers=0
+  stage1.latent_optim.samples_per_iter=1000)
+
+decoder_dir() {  # the stage-1 folder train.py uses for this category's config
+  .venv/bin/python - "$1" "${COMMON[@]}" <<'EOF'
+import sys
+from hydra import compose, initialize_config_dir
+from hydra.core.hydra_config import HydraConfig
+from ushape.training.decoder_store import decoder_dir_for
+from ushape.workspace import CONFIG_DIR
+with initialize_config_dir(str(CONFIG_DIR), version_base="1.3"):
+    cfg = compose("train", overrides=[f"category={sys.argv[1]}", *sys.argv[2:]], return_hydra_config=True)
+    HydraConfig.instance().set_config(cfg)
+    print(decoder_dir_for(cfg))
+EOF
+}
+
+categories=("$@")
+[[ ${#categories[@]} -gt 0 ]] || categories=(chairs tables)
+for category in "${categories[@]}"; do
+  committed=ushape/pretrained/$category/decoder
+  folder=$(decoder_dir "$category")
+  if [[ -f $committed/DONE && ! -f $folder/DONE ]]; then
+    mkdir -p "$folder" && cp "$committed"/{decoder.pt,codes_train.pt,codes_val.pt,codes_test.pt,DONE} "$folder"/
+    echo "stage 1 of $category restored from $committed into $folder"
+  fi
+  for stage in decoder encoder; do
+    OMP_NUM_THREADS=$THREADS nice -n 5 .venv/bin/python train.py "${COMMON[@]}" stage=$stage loss=es category="$category"
+  done
+done
