@@ -24,6 +24,8 @@ OUTPUT_PATTERNS = (
     "overview.png",
     "depth_*.npz",
     "depth_*.png",
+    "report.html",
+    "model-viewer-umd.min.js",
 )
 
 

@@ -27,6 +27,7 @@ from ushape.reconstruction.export import coloured_mesh, write_mesh_files
 from ushape.reconstruction.figures import overview_figure
 from ushape.reconstruction.mesh_std import Fusion, mesh_std, sdf_distance_scale, sdf_floor, sdf_temperature
 from ushape.reconstruction.out_dir import SUMMARY_FILE, claimed
+from ushape.reconstruction.page import known_cameras, page_figures, reconstruction_page
 from ushape.reconstruction.predictor import Predictor
 from ushape.reconstruction.refine_calibration import read_refinement_calibration
 from ushape.reconstruction.refined_code import r2n2_frame_of, refined
@@ -169,21 +170,20 @@ def write_outputs(
     with timer("visibility"):  # only where the view's camera is known: a render of the world
         seen = [hidden_over_visible(mesh, std, w2c) if kind == "render" else None for _, w2c, kind in cameras]
     precision_record = {"requested": settings.precision, "resolved": precision, "why": why}
-    return write_summary(
-        out_dir,
-        predictor,
-        fusion,
-        settings,
-        encoded,
-        mesh,
-        std,
-        stats,
-        files,
-        depth,
-        seen,
-        timer.seconds,
-        precision_record,
-    )
+    args = (out_dir, predictor, fusion, settings, encoded, mesh, std, stats, files, depth, seen, timer.seconds)
+    summary = write_summary(*args, precision_record)
+    with timer("report"):
+        prior = None
+        if encoded.refinement is not None and not encoded.refinement.get("fallback"):
+            prior_mesh, _ = mean_mesh(predictor.decoder, encoded.prior.mu, settings.resolution, bf16)
+            prior_std = mesh_std(predictor, fusion, encoded.prior, prior_mesh, settings, generator, None, [], bf16_std)
+            prior = (prior_mesh, prior_std)
+        known = known_cameras(encoded, cameras, settings.depth_size)
+        page = reconstruction_page(out_dir, encoded, mesh, std, files, known, page_figures(summary), prior)
+    summary["files"]["report"] = str(page)
+    summary["seconds"] = timer.seconds
+    atomic.write_json(out_dir / SUMMARY_FILE, summary)
+    return summary
 
 
 def write_mesh_outputs(
