@@ -20,8 +20,11 @@ def test_active_writes_the_sequence_and_says_what_it_chose(sphere_world, tmp_pat
     assert [s["view"] for s in summary["steps"]] == [1, 5, 3]  # opposite, then 90 degrees (ties: lower index)
     assert [s["azimuth"] for s in summary["steps"]] == pytest.approx([45.0, 225.0, 135.0])
     assert all(0 <= s["iou"] <= 1 for s in summary["steps"])
-    for name in ("sequence.png", "views/step_3.png", "step_1.ply", "step_3.glb"):
+    for name in ("sequence.png", "views/step_3.png", "step_1.ply", "step_3.glb", "report.html"):
         assert (out / name).is_file(), name
+    page = (out / "report.html").read_text()  # a slider over the three steps, each with the cameras taken
+    assert summary["report"] == str(out / "report.html") and "const SLIDER = true" in page
+    assert all(f'"label": "{k} view(s)"' in page for k in (1, 2, 3))
     printed = capsys.readouterr().out
     assert "view 3: candidate 3 (azimuth 135" in printed and "farthest sequence of test_0" in printed
 

@@ -34,8 +34,9 @@ from ushape.planning.candidates import SOURCES
 from ushape.planning.figures import sequence_figure, step_surfaces
 from ushape.planning.observers import OBSERVERS, build_observer
 from ushape.planning.strategies import STRATEGIES
-from ushape.reconstruction.export import write_mesh_files
+from ushape.reconstruction.export import DEFAULT_CMAP, colour_range, coloured_mesh, write_colour_bar, write_mesh_files
 from ushape.reconstruction.pretrained import PREFIX, open_model
+from ushape.reconstruction.report_page import Scene, write_report
 
 DEFAULT_OUT = Path("outputs") / "active"
 
@@ -135,6 +136,7 @@ def run_active(args: argparse.Namespace) -> dict:
     inputs = [encode.input(s.view) for s in steps]
     ious = [r["iou"] for r in records]
     save_figure(sequence_figure(inputs, steps, surfaces, candidates, ious, heading), out / "sequence.png")
+    report = sequence_page(out, steps, surfaces, candidates, inputs, records, heading)
     summary = {
         "shape_id": shape_id,
         "world": str(world.root),
@@ -147,9 +149,31 @@ def run_active(args: argparse.Namespace) -> dict:
         "seed": args.seed,
         "steps": records,
         "out": str(out),
+        "report": str(report),
     }
     atomic.write_json(out / "summary.json", summary)
     return summary
+
+
+def sequence_page(out: Path, steps, surfaces, candidates, inputs, records: list[dict], heading: str) -> Path:
+    """report.html with a slider over the views taken: at step k the mesh of the k views' fused code coloured
+    by its std (one colour scale for all steps, so the std is seen to fall), and the k cameras taken."""
+    stds = [None if s is None else np.sqrt(np.maximum(s.variance, 0.0)) for s in surfaces]
+    drawn = [std for std in stds if std is not None and len(std)]
+    top = colour_range(np.concatenate(drawn), None) if drawn else 1.0
+    hw = candidates.image_hw
+    scenes = []
+    for k, (surface, std, record) in enumerate(zip(surfaces, stds, records), start=1):
+        if surface is None:
+            continue
+        taken = [s.view for s in steps[:k]]
+        cameras = [(candidates.K[v], candidates.world_to_cam[v], tuple(int(x) for x in hw[v])) for v in taken]
+        figures = {key: record[key] for key in ("view", "azimuth", "elevation", "trace", "iou", "cd")}
+        scenes.append(Scene(f"{k} view(s)", coloured_mesh(surface.mesh, std, top, DEFAULT_CMAP), cameras, figures))
+    bar = out / "sequence_colourbar.png"
+    write_colour_bar(bar, top)
+    views = [image.permute(1, 2, 0).clamp(0, 1).numpy() for image in inputs]
+    return write_report(out, heading, scenes, views, bar, slider=True)
 
 
 def write_steps(

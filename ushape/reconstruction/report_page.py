@@ -163,8 +163,9 @@ SCENES.forEach((s, i) => {{
 }});
 function table() {{
   const rows = Object.assign({{}}, FIGURES, SCENES[scene].figures);
+  const shown = (v) => (typeof v === "number" && !Number.isInteger(v) ? v.toPrecision(4) : v);
   document.getElementById("figures").innerHTML = Object.entries(rows).map(
-    ([k, v]) => "<tr><th>" + k + "</th><td>" + (typeof v === "number" && !Number.isInteger(v) ? v.toPrecision(4) : v) + "</td></tr>").join("");
+    ([k, v]) => "<tr><th>" + k + "</th><td>" + shown(v) + "</td></tr>").join("");
 }}
 function show() {{
   viewer.src = plain ? SCENES[scene].plain : SCENES[scene].coloured;
