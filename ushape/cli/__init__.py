@@ -5,6 +5,7 @@
     ushape reconstruct view.png --fusion bayesian_k
     ushape active --shape <id> --strategy uncertainty --views 6
     ushape bench --quick
+    ushape view outputs/reconstructions/<time>     report.html served on localhost
     ushape gather | report | gallery | sign-bench ...
 
 `ushape <command> --help` shows a command's options. From a source checkout the root scripts
@@ -26,6 +27,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "reconstruct": ("ushape.reconstruction.cli", "images -> mesh with per-vertex uncertainty and depth maps"),
     "active": ("ushape.cli.active", "next-best-view: reconstruct one object view by view, each chosen by a strategy"),
     "bench": ("ushape.bench.cli", "time the paper's computation table on this machine"),
+    "view": ("ushape.reconstruction.serve", "serve a reconstruction's report.html on localhost (for SSH forwarding)"),
     "gather": ("ushape.evaluation.gather", "one table from an evaluation sweep's folders"),
     "report": ("ushape.decoder.report", "a stage-1 decoder folder's reconstruction report"),
     "gallery": ("ushape.data.gallery", "a picture of the synthetic world's shapes and renders"),
