@@ -39,8 +39,10 @@ from ushape.fusion import FusedCode
 from ushape.mesh.extraction import EmptySurfaceError, extract_mesh
 from ushape.metrics.pix3d import ShapeReference, pix3d_metrics, reference_from_mesh
 from ushape.reconstruction.calibrated_fusion import calibrated_counterpart
+from ushape.reconstruction.export import DEFAULT_CMAP, coloured_mesh, read_ply_std, write_colour_bar
 from ushape.reconstruction.pipeline import reconstruct
 from ushape.reconstruction.predictor import load_predictor
+from ushape.reconstruction.report_page import Scene, write_report
 from ushape.reconstruction.settings import ReconstructionSettings
 
 log = logging.getLogger(__name__)
@@ -90,8 +92,43 @@ def write_demo_meshes(
             # The single view's colour scale for the others too: less uncertainty looks darker.
             if settings.std_max is None:
                 settings = dataclasses.replace(settings, std_max=float(summary["files"]["std_max"]))
-    atomic.write_json(out_dir / SCORES_FILE, score_demo(predictor.decoder, world, out_dir, ids, resolution, codes))
+    scores = score_demo(predictor.decoder, world, out_dir, ids, resolution, codes)
+    atomic.write_json(out_dir / SCORES_FILE, scores)
+    demo_page(out_dir, world, ids[0], scores.get(ids[0], {}))
     return out_dir
+
+
+def demo_page(out_dir: Path, world: WorldIndex, shape_id: str, scores: dict[str, dict[str, float]]) -> Path | None:
+    """out_dir/report.html: the first demo shape from one view and from all, fused and refined, on the single
+    view's colour scale, with the views' cameras and each mesh's scores; None when no demo has a mesh."""
+    folders = sorted(
+        (f for f in out_dir.glob(f"{shape_id}_*view*") if (f / "summary.json").is_file()),
+        key=lambda f: (len(json.loads((f / "summary.json").read_text())["views"]), "refined" in f.name),
+    )
+    if not folders:
+        return None
+    with np.load(world.views_path(shape_id)) as views:
+        Ks, w2cs = views["K"].astype(np.float64), views["world_to_cam"].astype(np.float64)
+    side = int(round(2 * Ks[0, 0, 2]))
+    top = float(json.loads((folders[0] / "summary.json").read_text())["files"]["std_max"])
+    scenes = []
+    for folder in folders:
+        summary = json.loads((folder / "summary.json").read_text())
+        n = len(summary["views"])
+        mesh = trimesh.load(folder / "mesh.ply", process=False)
+        label = f"{n} view{'s' if n > 1 else ''}, " + ("refined" if "refined" in folder.name else "fused")
+        figures = {"latent trace (fused)": summary["fused"]["trace_var"], **scores.get(folder.name, {})}
+        cameras = [(Ks[i], w2cs[i], (side, side)) for i in range(min(n, len(Ks)))]
+        scenes.append(
+            Scene(label, coloured_mesh(mesh, read_ply_std(folder / "mesh.ply"), top, DEFAULT_CMAP), cameras, figures)
+        )
+    bar = out_dir / "demo_colourbar.png"
+    write_colour_bar(bar, top)
+    own = scores.get(OWN_CODE) or {}
+    figures = {"shape": shape_id, **{f"own code {k}": v for k, v in own.items()}}
+    return write_report(
+        out_dir, f"held-out {shape_id}: one view and all, fused and refined", scenes, (), bar, figures=figures
+    )
 
 
 def score_demo(
