@@ -14,7 +14,16 @@ from ushape.reconstruction.predictor import load_predictor
 
 def test_an_exported_run_loads_by_name_and_encodes_as_the_run(tiny_run, tmp_path, monkeypatch):
     folder = pretrained.export_pretrained(tiny_run["run"], "tiny", tmp_path, category="chairs")
-    assert sorted(p.name for p in folder.iterdir()) == ["decoder", "encoder.ckpt", "model.json"]
+    assert sorted(p.name for p in folder.iterdir()) == [
+        "MODEL_CARD.md",
+        "decoder",
+        "encoder.ckpt",
+        "model.json",
+        "splits.json",
+    ]
+    card = (folder / "MODEL_CARD.md").read_text()
+    assert "# ushape model `tiny`" in card and "Category: chairs" in card and "research and non-commercial" in card
+    assert json.loads((folder / "splits.json").read_text())["test"] == ["test_0", "test_1"]
     record = json.loads((folder / "model.json").read_text())
     assert record["name"] == "tiny" and record["category"] == "chairs" and record["image_size"] == 16
     monkeypatch.setattr(pretrained, "PRETRAINED_DIR", tmp_path)

@@ -11,6 +11,7 @@ makes one from a trained run.
                                     when it is exactly those weights
       temperature.json              the fitted T, T_sdf and shared-error fusion (as beside a run's checkpoint)
       refinement_calibration.json   the refinement's fits per mode
+      splits.json                   the exact shape ids of its train, val and test splits
       MODEL_CARD.md                 data, splits, recipe, the command that reproduces it, figures, terms
 
 Nothing is downloaded: the files travel in the wheel (package data). fp16 storage rounds the heads'
@@ -28,8 +29,10 @@ import numpy as np
 import torch
 
 from ushape import atomic
+from ushape.data.layout import read_split
 from ushape.decoder.artifacts import DECODER_FILE
 from ushape.errors import InputError, MissingInputError
+from ushape.reconstruction.model_card import model_card
 from ushape.reconstruction.predictor import (
     TEMPERATURE_FILE,
     Predictor,
@@ -45,6 +48,7 @@ from ushape.reconstruction.refined_code import r2n2_frame_of
 PRETRAINED_DIR = Path(__file__).resolve().parents[1] / "pretrained"
 PREFIX = "pretrained:"  # `--run pretrained:chairs` is `--model chairs`
 MODEL_FILE, ENCODER_FILE, DECODER_DIR, CARD_FILE = "model.json", "encoder.ckpt", "decoder", "MODEL_CARD.md"
+SPLITS_FILE = "splits.json"  # the exact shape ids of the model's train, val and test splits
 # Largest difference allowed between the exported model and its run on the same images: in mu, relative to the
 # largest |mu| (at least 1); in log var, absolute.
 EXPORT_TOLERANCE = 2e-2
@@ -186,10 +190,22 @@ def export_pretrained(run: str | Path, name: str, out_root: str | Path = PRETRAI
             **record,
         },
     )
+    record_written = atomic.read_json_object(staging / MODEL_FILE, DAMAGED)
+    splits = world_splits(predictor)
+    if splits is not None:
+        atomic.write_json(staging / SPLITS_FILE, splits)
+    atomic.write_text(staging / CARD_FILE, model_card(record_written, splits))
     check_export(predictor, staging)
     shutil.rmtree(folder, ignore_errors=True)
     staging.rename(folder)
     return folder
+
+
+def world_splits(predictor: Predictor) -> dict[str, list[str]] | None:
+    """The run's world's split ids (None without a readable world)."""
+    if predictor.world is None or not (Path(predictor.world) / "splits").is_dir():
+        return None
+    return {split: read_split(predictor.world, split) for split in ("train", "val", "test")}
 
 
 def compact(value: torch.Tensor) -> torch.Tensor:
