@@ -102,3 +102,31 @@ def test_eval_adds_the_refined_rows_of_a_method_config(sphere_world, tmp_path, m
     rows = {r["label"]: r for r in json.loads((tmp_path / "eval" / "eval_row.json").read_text())}
     assert rows["Ours-NLL + refine (masks)"]["n_instances"] == rows["Ours-NLL"]["n_instances"] == 4
     assert list((tmp_path / "cache" / "refine").glob("*.pt"))
+
+
+def test_eval_scores_a_shipped_model_by_name_on_a_given_world(sphere_world, tmp_path, monkeypatch):
+    """runs=[pretrained:<name>] world=<folder>: a model from the package, scored like a run."""
+    from ushape.reconstruction import pretrained
+
+    monkeypatch.setenv("USHAPE_ROOT", str(tmp_path))
+    run_dir = fit_sphere_run(sphere_world, tmp_path)
+    pretrained.export_pretrained(run_dir, "sphere", tmp_path / "shipped")
+    monkeypatch.setattr(pretrained, "PRETRAINED_DIR", tmp_path / "shipped")
+    out = tmp_path / "eval_shipped"
+    cfg = _compose(
+        [
+            "runs=[pretrained:sphere]",
+            f"world={sphere_world.root}",
+            f"cache_dir={tmp_path / 'cache'}",
+            "tensorboard=false",
+            "protocols=[single_view]",
+            "protocol.resolution=24",
+            "protocol.n_points=128",
+            "protocol.single_view_views=2",
+        ]
+    )
+    cfg.out_dir = str(out)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        iou = run_eval(cfg)
+    assert 0 <= iou <= 1 and "Table 1" in (out / "tables.md").read_text()

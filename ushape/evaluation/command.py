@@ -17,6 +17,7 @@ from ushape.evaluation.report import write_results
 from ushape.evaluation.runner import evaluate_runs
 from ushape.evaluation.settings import PAPER_PROTOCOLS, Settings
 from ushape.evaluation.sources import resolve_runs
+from ushape.reconstruction.pretrained import PREFIX
 from ushape.training.summary import discard_if_bookkeeping_only
 from ushape.training.validation import check_config
 
@@ -52,7 +53,7 @@ def default_out_dir(runs: list[Path]) -> Path:
     otherwise into the evaluated run (<run>/eval/<time>), or the sweep folder its runs share."""
     from hydra.core.hydra_config import HydraConfig
 
-    if _multirun() or not runs:
+    if _multirun() or not runs or any(str(r).startswith(PREFIX) for r in runs):  # a shipped model has no run folder
         return Path(HydraConfig.get().runtime.output_dir)
     parents = {Path(r).resolve().parent for r in runs}
     home = Path(runs[0]).resolve() if len(runs) == 1 else (parents.pop() if len(parents) == 1 else None)

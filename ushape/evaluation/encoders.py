@@ -64,16 +64,18 @@ def load_encoder(
     (latent, and SDF where one was fitted).
     The world is checked (and a synthetic one repaired) by `open_world`, once per folder in `opened`.
     """
-    from ushape.reconstruction.predictor import load_predictor, read_temperatures
+    from ushape.reconstruction.predictor import read_temperatures
+    from ushape.reconstruction.pretrained import PREFIX, open_model
 
-    predictor = load_predictor(run_dir)
-    if temperature and predictor.model.predicts_variance:  # FroDO* has no variance to scale
+    shipped = str(run_dir).startswith(PREFIX)
+    predictor = open_model(str(run_dir) if shipped else run_dir)  # a shipped model comes calibrated
+    if temperature and predictor.model.predicts_variance and not shipped:  # FroDO* has no variance to scale
         predictor.temperature, predictor.sdf_temperature = read_temperatures(predictor.checkpoint)
     world_dir = world_dir or predictor.world
     if world_dir is None:
         raise FileNotFoundError(
-            f"{run_dir} has no run.json naming its data world (an unfinished run?): "
-            "pass the world folder with world=<outputs/data/synthetic/...>"
+            f"{run_dir} names no data world ({'a shipped model' if shipped else 'no run.json: an unfinished run?'}): "
+            "pass the world folder with world=<outputs/data/...>"
         )
     opened = {} if opened is None else opened
     key = Path(world_dir).resolve()

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Sequence
 
 from ushape.errors import MissingInputError
+from ushape.reconstruction.pretrained import PREFIX
 from ushape.workspace import MULTIRUN_DIR, RUN_SUMMARY, RUNS_DIR
 
 SEARCHED = (RUNS_DIR, MULTIRUN_DIR)
@@ -50,7 +51,8 @@ def resolve_runs(
     """Run folders to evaluate: `runs` as given (each must exist), else `sweep`'s runs, else the newest."""
     if runs:
         paths = [Path(r).expanduser() for r in runs]
-        missing = [str(p) for p in paths if not p.exists()]
+        # `pretrained:<name>`: a model shipped in the package (ushape.reconstruction.pretrained), not a folder
+        missing = [str(p) for p in paths if not p.exists() and not str(p).startswith(PREFIX)]
         if missing:
             raise MissingInputError(f"run folder(s) {missing} do not exist: {HINT}")
         return paths

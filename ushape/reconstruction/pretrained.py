@@ -21,6 +21,7 @@ run did to within `EXPORT_TOLERANCE`.
 
 from __future__ import annotations
 
+import logging
 import shutil
 from pathlib import Path
 from typing import Any
@@ -30,7 +31,7 @@ import torch
 
 from ushape import atomic
 from ushape.data.layout import read_split
-from ushape.decoder.artifacts import DECODER_FILE
+from ushape.decoder.artifacts import DECODER_FILE, codes_file
 from ushape.errors import InputError, MissingInputError
 from ushape.reconstruction.model_card import model_card
 from ushape.reconstruction.predictor import (
@@ -45,6 +46,7 @@ from ushape.reconstruction.predictor import (
 from ushape.reconstruction.refine_calibration import CALIBRATION_FILE
 from ushape.reconstruction.refined_code import r2n2_frame_of
 
+log = logging.getLogger(__name__)
 PRETRAINED_DIR = Path(__file__).resolve().parents[1] / "pretrained"
 PREFIX = "pretrained:"  # `--run pretrained:chairs` is `--model chairs`
 MODEL_FILE, ENCODER_FILE, DECODER_DIR, CARD_FILE = "model.json", "encoder.ckpt", "decoder", "MODEL_CARD.md"
@@ -113,7 +115,11 @@ def load_model_folder(folder: Path, temperature: bool = True) -> Predictor:
     if missing and not blob.get("backbone_from_package"):
         raise InputError(f"{folder / ENCODER_FILE} holds no backbone and does not say it is the package's")
     model.eval()
-    latent_t, sdf_t = read_temperatures(folder / ENCODER_FILE) if temperature else (None, None)
+    latent_t, sdf_t = None, None
+    if temperature and (folder / TEMPERATURE_FILE).is_file():
+        latent_t, sdf_t = read_temperatures(folder / ENCODER_FILE)
+    elif temperature:
+        log.warning("%s ships no %s: its variances are the encoder's own, uncalibrated", folder, TEMPERATURE_FILE)
     return Predictor(
         model=model,
         image_size=int(record["image_size"]),
@@ -167,7 +173,9 @@ def export_pretrained(run: str | Path, name: str, out_root: str | Path = PRETRAI
     staging = folder.with_name(f".{name}.staging")
     shutil.rmtree(staging, ignore_errors=True)
     (staging / DECODER_DIR).mkdir(parents=True)
-    shutil.copy2(decoder_dir / DECODER_FILE, staging / DECODER_DIR / DECODER_FILE)
+    for stored in (DECODER_FILE, *(codes_file(split) for split in ("train", "val", "test"))):
+        if (decoder_dir / stored).is_file():  # the codes: the decoder's ceiling rows in eval.py, the prior's mean
+            shutil.copy2(decoder_dir / stored, staging / DECODER_DIR / stored)
     hparams.pop("decoder_path", None)
     atomic.torch_save(
         {"hyper_parameters": hparams, "state_dict": state, "backbone_from_package": not keep_backbone},
