@@ -5,10 +5,11 @@ registry, vendored in ushape/reconstruction/viewer/, 1.07 MB; three.js inside): 
 component that loads glTF with vertex colours (COLOR_0) and orbits it with mouse or touch. Chosen over
 a Python server (viser) because the page must open from a zipped folder with no process running, and
 over three.js alone because its ES modules cannot be imported from file:// pages; the UMD build is a
-classic script, which can. Each scene is embedded in the page as a base64 GLB (a file:// page cannot
-fetch a file beside it), twice: coloured by its std, and plain grey (the toggle). Cameras are drawn as
-frustums (line segments) in the same GLB. The folder holds report.html, model-viewer-umd.min.js and
-the files reconstruct.py writes anyway; nothing is fetched from the network.
+classic script, which can. Each scene is embedded in the page once, as a base64 GLB (a file:// page
+cannot fetch a file beside it), coloured by its std; the toggle's plain grey twin is made in the page
+by overwriting its COLOR_0. Cameras are drawn as frustums (line segments) in the same GLB. The folder
+holds report.html, model-viewer-umd.min.js and the files reconstruct.py writes anyway; nothing is
+fetched from the network.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import html
 import io
 import json
 import shutil
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -31,7 +33,6 @@ from ushape import atomic
 VIEWER_DIR = Path(__file__).resolve().parent / "viewer"
 VIEWER_JS = "model-viewer-umd.min.js"
 REPORT_FILE = "report.html"
-PLAIN_GREY = (200, 200, 200, 255)
 FRUSTUM_COLOUR = (40, 120, 220, 255)
 FRUSTUM_DEPTH = 0.35  # how far (world units) a camera's frustum reaches towards the object
 THUMBNAIL = 96  # px, the input views' thumbnails
@@ -60,18 +61,64 @@ def frustum_segments(K: np.ndarray, world_to_cam: np.ndarray, hw: tuple[int, int
     return np.array(spokes + rim)
 
 
-def scene_glb(scene: Scene, plain: bool) -> bytes:
-    """The scene as one GLB: the mesh (its std colours, or plain grey) and every camera's frustum."""
-    mesh = scene.coloured.copy()
-    if plain:
-        mesh.visual.vertex_colors = np.tile(PLAIN_GREY, (len(mesh.vertices), 1))
-    parts = trimesh.Scene(mesh)
+def scene_glb(scene: Scene) -> bytes:
+    """The scene as one compact GLB: the mesh (positions, its std colours as COLOR_0, 16-bit indices where they
+    fit) and every camera's frustum as coloured lines. The page makes the plain-shaded copy itself (greying
+    COLOR_0), so each scene is stored once."""
+    mesh = scene.coloured
+    colours = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)[:, :4]
+    primitives = [(np.asarray(mesh.vertices, np.float32), colours, np.asarray(mesh.faces).reshape(-1), TRIANGLES)]
     if len(scene.cameras):
         segments = np.concatenate([frustum_segments(K, w2c, hw, FRUSTUM_DEPTH) for K, w2c, hw in scene.cameras])
-        path = trimesh.load_path(segments)
-        path.colors = np.tile(FRUSTUM_COLOUR, (len(path.entities), 1))
-        parts.add_geometry(path)
-    return parts.export(file_type="glb")
+        points = segments.reshape(-1, 3).astype(np.float32)
+        line_colours = np.tile(np.asarray(FRUSTUM_COLOUR, np.uint8), (len(points), 1))
+        primitives.append((points, line_colours, np.arange(len(points)), LINES))
+    return pack_glb(primitives)
+
+
+TRIANGLES, LINES = 4, 1  # glTF primitive modes
+
+
+def pack_glb(primitives: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray, int]]) -> bytes:
+    """A binary glTF 2.0 of one mesh whose primitives are (positions [N, 3] float32, colours [N, 4] uint8,
+    indices [M], mode); COLOR_0 is normalised uint8, indices uint16 where every index fits, else uint32."""
+    blob, views, accessors, prims = bytearray(), [], [], []
+
+    def add(array: np.ndarray, component: int, kind: str, target: int, normalized: bool = False, bounds=False) -> int:
+        while len(blob) % 4:
+            blob.append(0)
+        views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": array.nbytes, "target": target})
+        blob.extend(array.tobytes())
+        accessor = {"bufferView": len(views) - 1, "componentType": component, "count": len(array), "type": kind}
+        if normalized:
+            accessor["normalized"] = True
+        if bounds:
+            accessor["min"], accessor["max"] = array.min(axis=0).tolist(), array.max(axis=0).tolist()
+        accessors.append(accessor)
+        return len(accessors) - 1
+
+    for positions, colours, indices, mode in primitives:
+        small = len(positions) < 65536
+        index = add(np.asarray(indices, np.uint16 if small else np.uint32), 5123 if small else 5125, "SCALAR", 34963)
+        position = add(np.ascontiguousarray(positions, np.float32), 5126, "VEC3", 34962, bounds=True)
+        colour = add(np.ascontiguousarray(colours, np.uint8), 5121, "VEC4", 34962, normalized=True)
+        prims.append({"attributes": {"POSITION": position, "COLOR_0": colour}, "indices": index, "mode": mode})
+    while len(blob) % 4:
+        blob.append(0)
+    gltf = {
+        "asset": {"version": "2.0", "generator": "ushape"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": prims}],
+        "buffers": [{"byteLength": len(blob)}],
+        "bufferViews": views,
+        "accessors": accessors,
+    }
+    text = json.dumps(gltf, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)
+    chunks = struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(blob), 0x004E4942) + bytes(blob)
+    return struct.pack("<III", 0x46546C67, 2, 12 + len(chunks)) + chunks
 
 
 def data_uri(data: bytes, mime: str) -> str:
@@ -101,13 +148,7 @@ def write_report(
     out_dir = Path(out_dir)
     shutil.copy2(VIEWER_DIR / VIEWER_JS, out_dir / VIEWER_JS)
     entries = [
-        {
-            "label": s.label,
-            "coloured": data_uri(scene_glb(s, plain=False), "model/gltf-binary"),
-            "plain": data_uri(scene_glb(s, plain=True), "model/gltf-binary"),
-            "figures": s.figures,
-        }
-        for s in scenes
+        {"label": s.label, "glb": base64.b64encode(scene_glb(s)).decode("ascii"), "figures": s.figures} for s in scenes
     ]
     bar = ""
     if colour_bar is not None:
@@ -167,8 +208,24 @@ function table() {{
   document.getElementById("figures").innerHTML = Object.entries(rows).map(
     ([k, v]) => "<tr><th>" + k + "</th><td>" + shown(v) + "</td></tr>").join("");
 }}
+// Each scene is one GLB (base64); its plain-shaded twin is the same bytes with the mesh's COLOR_0 set grey.
+function glbUrl(i, grey) {{
+  const key = grey ? "plainUrl" : "url";
+  if (SCENES[i][key]) return SCENES[i][key];
+  const bytes = Uint8Array.from(atob(SCENES[i].glb), (c) => c.charCodeAt(0));
+  if (grey) {{
+    const view = new DataView(bytes.buffer), jsonLength = view.getUint32(12, true);
+    const gltf = JSON.parse(new TextDecoder().decode(bytes.subarray(20, 20 + jsonLength)));
+    const binStart = 20 + jsonLength + 8;
+    const colours = gltf.bufferViews[gltf.accessors[gltf.meshes[0].primitives[0].attributes.COLOR_0].bufferView];
+    const rgba = bytes.subarray(binStart + colours.byteOffset, binStart + colours.byteOffset + colours.byteLength);
+    for (let k = 0; k < rgba.length; k += 4) {{ rgba[k] = rgba[k + 1] = rgba[k + 2] = 200; rgba[k + 3] = 255; }}
+  }}
+  SCENES[i][key] = URL.createObjectURL(new Blob([bytes], {{ type: "model/gltf-binary" }}));
+  return SCENES[i][key];
+}}
 function show() {{
-  viewer.src = plain ? SCENES[scene].plain : SCENES[scene].coloured;
+  viewer.src = glbUrl(scene, plain);
   toggle.textContent = plain ? "colour by std" : "plain shading";
   document.getElementById("step").textContent = SCENES[scene].label;
   document.body.dataset.shown = SCENES[scene].label + (plain ? " plain" : " coloured");
@@ -179,7 +236,9 @@ slider.oninput = () => {{ scene = +slider.value; show(); }};
 toggle.onclick = () => {{ plain = !plain; show(); }};
 const start = location.hash.match(/scene=(\\d+)/);
 if (start) {{ scene = Math.min(+start[1], SCENES.length - 1); chooser.value = scene; slider.value = scene; }}
-viewer.addEventListener("load", () => {{ document.body.dataset.loaded = "yes"; }});
+viewer.addEventListener("load", () => {{  // when the mesh is drawn: ms since navigation (the load-time check)
+  document.body.dataset.loadedMs = Math.round(performance.now());
+}});
 show();
 if (location.hash.indexOf("toggle") >= 0) toggle.click();  // what a user's click does (the browser test's hook)
 </script>
