@@ -7,6 +7,10 @@ geometry; `sdf(xyz, z)` broadcasts the same way, and `save_decoder` / `load_deco
 
 from __future__ import annotations
 
+import json
+import shutil
+from pathlib import Path
+
 import torch
 from torch import Tensor, nn
 
@@ -32,3 +36,24 @@ class EllipsoidDecoder(nn.Module):
         a = self.base + self.spread * torch.tanh(z[..., 0])
         lead = torch.broadcast_shapes(xyz.shape[:-1], a.shape)
         return ellipsoid_sdf(xyz, a.expand(lead), self.b)
+
+
+def run_with_ellipsoid(tiny_run: dict, base: Path, latent_size: int) -> Path:
+    """A copy of tiny_run's run under base whose encoder decodes through the analytic ellipsoid (a surface for
+    every code): its decoder folder copied with decoder.pt replaced, the checkpoint and run.json pointed there."""
+    from ushape import atomic
+    from ushape.decoder.artifacts import DECODER_FILE, save_decoder
+
+    decoder_dir = shutil.copytree(tiny_run["decoder_dir"], base / "decoder")
+    config = {"_target_": "analytic_decoder.EllipsoidDecoder", "latent_size": latent_size}
+    save_decoder(decoder_dir / DECODER_FILE, EllipsoidDecoder(latent_size=latent_size), config)
+    run = shutil.copytree(tiny_run["run"], base / "run")
+    checkpoint = run / "checkpoints" / "best.ckpt"
+    blob = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    blob["hyper_parameters"]["decoder_path"] = str(decoder_dir)
+    torch.save(blob, checkpoint)
+    record = json.loads((run / "run.json").read_text())
+    atomic.write_json(
+        run / "run.json", {**record, "decoder_dir": str(decoder_dir), "encoder_checkpoint": str(checkpoint)}
+    )
+    return run

@@ -16,14 +16,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
-from analytic_decoder import EllipsoidDecoder
+from analytic_decoder import run_with_ellipsoid
 from PIL import Image
 from repo_commands import run_command
 
-from ushape import atomic
 from ushape.data.augment import read_image
-from ushape.decoder.artifacts import DECODER_FILE, save_decoder
 from ushape.reconstruction.view_depth import view_camera
 
 TESTS = Path(__file__).resolve().parents[1]
@@ -135,18 +132,7 @@ def test_eval_refuses_bad_input_in_one_line(tmp_path, args, named):
 @pytest.fixture(scope="module")
 def ellipsoid_run(tiny_run, tmp_path_factory):
     """tiny_run's encoder with the analytic ellipsoid as its decoder (a surface for every code), in a copy."""
-    base = tmp_path_factory.mktemp("ellipsoid_run")
-    decoder_dir = shutil.copytree(tiny_run["decoder_dir"], base / "decoder")
-    config = {"_target_": "analytic_decoder.EllipsoidDecoder", "latent_size": LATENT}
-    save_decoder(decoder_dir / DECODER_FILE, EllipsoidDecoder(latent_size=LATENT), config)
-    run = shutil.copytree(tiny_run["run"], base / "run")
-    checkpoint = run / "checkpoints" / "best.ckpt"
-    blob = torch.load(checkpoint, map_location="cpu", weights_only=False)
-    blob["hyper_parameters"]["decoder_path"] = str(decoder_dir)
-    torch.save(blob, checkpoint)
-    record = json.loads((run / "run.json").read_text())
-    record.update(decoder_dir=str(decoder_dir), encoder_checkpoint=str(checkpoint))
-    atomic.write_json(run / "run.json", record)
+    run = run_with_ellipsoid(tiny_run, tmp_path_factory.mktemp("ellipsoid_run"), LATENT)
     return {"run": run, "world": tiny_run["world"]}
 
 
