@@ -39,6 +39,8 @@ def span_and_offset(rgba: torch.Tensor) -> tuple[float, float]:
 def test_an_object_framed_as_the_renders_frame_it_is_left_as_it_is():
     rendered = square_object(137, 25, 30, 88)  # spans 0.64, near the centre: R2N2's framing
     assert torch.equal(frame_object(rendered), pad_square(rendered))
+    opaque = torch.ones(4, 60, 80)  # no alpha: the object is not marked, so nothing is re-framed
+    assert torch.equal(frame_object(opaque), pad_square(opaque))
 
 
 @pytest.mark.parametrize("top, left, size", [(10, 200, 40), (0, 0, 300), (100, 5, 150)])

@@ -306,7 +306,7 @@ def frame_object(rgba: Tensor) -> Tensor:
     the object's box spanning it by FRAMED_SPAN, transparent where it leaves the image."""
     square = pad_square(rgba)
     inside = square[3] > 0.5
-    if not bool(inside.any()):
+    if not bool(inside.any()) or float(rgba[3].min()) > 0.99:  # nothing, or no alpha: the object is not marked
         return square
     side = square.shape[-1]
     rows, cols = inside.any(1).nonzero()[:, 0], inside.any(0).nonzero()[:, 0]
