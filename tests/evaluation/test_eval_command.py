@@ -56,6 +56,9 @@ def test_eval_writes_tables_and_the_setting_row_for_a_real_run(sphere_world, tmp
     row = json.loads((out / "eval_row.json").read_text())[0]
     assert (row["label"], row["fusion"], row["n_views"]) == ("Ours-NLL", "bayesian-3", 4)  # 2 shapes x 2 views
     assert "Table 1" in (out / "tables.md").read_text() and "Table S1" in capsys.readouterr().out
+    shown = sorted(p.stem for p in (out / "meshes").glob("*.npz"))  # the showcase, in the page's 3D viewer
+    page = (out / "report.html").read_text()
+    assert shown and all(f'"label": "{stem}"' in page for stem in shown) and "<table><tr><th>" in page
     cfg.out_dir = None  # the default: into the evaluated run's folder
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -130,3 +133,5 @@ def test_eval_scores_a_shipped_model_by_name_on_a_given_world(sphere_world, tmp_
         warnings.simplefilter("ignore")
         iou = run_eval(cfg)
     assert 0 <= iou <= 1 and "Table 1" in (out / "tables.md").read_text()
+    page = (out / "report.html").read_text()  # the evaluation's page: its tables (and plots, showcase meshes)
+    assert "<table><tr><th>" in page and "Table 1" in page

@@ -12,6 +12,7 @@ from omegaconf import DictConfig, OmegaConf
 from ushape.builders import build
 from ushape.errors import bad_input_exit
 from ushape.evaluation.methods import build_methods
+from ushape.evaluation.page import evaluation_page
 from ushape.evaluation.plugin import load_protocols
 from ushape.evaluation.report import write_results
 from ushape.evaluation.runner import evaluate_runs
@@ -124,6 +125,7 @@ def _evaluate(cfg: DictConfig) -> float | None:
         methods=build_methods(list(cfg.get("methods") or [])),
     )
     paths = write_results(result, out_dir, tensorboard=cfg.tensorboard)
+    page = evaluation_page(out_dir, f"evaluation of {', '.join(str(r) for r in runs)}")
     if "tables" in paths:
         print(paths["tables"].read_text())
     for row in result["rows"]:
@@ -131,6 +133,6 @@ def _evaluate(cfg: DictConfig) -> float | None:
             f"{row['label']:>10} {row['fusion']:>12} min_scale {row['min_scale']:g}: single-view IoU "
             f"{row['single_view_iou']:.4f}, {row['group_size']}-view IoU {row['multi_view_iou']:.4f}"
         )
-    print(f"Evaluation written to {out_dir} ({result['seconds']} s)")
+    print(f"Evaluation written to {out_dir} ({result['seconds']} s); open {page} in a browser")
     rows = result["rows"]
     return sum(r["multi_view_iou"] for r in rows) / len(rows) if rows else None

@@ -21,6 +21,8 @@ NLL_NOTE = (
     "in SDF space. SDF values clamped to the decoder's training clamp; variance floored at 1e-6."
 )
 
+TABLES_FILE = "tables.md"  # every table of an evaluation, in Markdown
+
 
 @dataclass
 class Table:
@@ -362,7 +364,7 @@ def write_tables(tables: Sequence[Table], out_dir: str | Path) -> Path:
     out_dir = Path(out_dir)
     for table in tables:
         atomic.write_text(out_dir / f"{slug(table.name)}.csv", table.to_csv())
-    markdown = out_dir / "tables.md"
+    markdown = out_dir / TABLES_FILE
     atomic.write_text(markdown, "\n".join(t.to_markdown() for t in tables))
     return markdown
 

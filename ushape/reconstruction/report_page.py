@@ -143,6 +143,7 @@ def write_report(
     std_label: str = "SDF std",
     figures: dict[str, Any] | None = None,  # summary figures shown under the view
     slider: bool = False,  # a slider over the scenes (a next-best-view sequence) instead of a chooser
+    appendix: str = "",  # more HTML under the figures (an evaluation's tables and plots)
 ) -> Path:
     """report.html (and the viewer script) in out_dir; returns the page's path."""
     out_dir = Path(out_dir)
@@ -163,6 +164,7 @@ def write_report(
         slider="true" if slider else "false",
         colour_bar=bar,
         thumbnails=thumbs,
+        appendix=appendix,
     )
     path = out_dir / REPORT_FILE
     atomic.write_text(path, page)
@@ -190,6 +192,7 @@ table {{ border-collapse: collapse; }} td, th {{ border: 1px solid #ddd; padding
 <div>{colour_bar}</div>
 <div id="views">{thumbnails}</div>
 <table id="figures"></table>
+{appendix}
 <script>
 const SCENES = {scenes};
 const FIGURES = {figures};
@@ -225,6 +228,11 @@ function glbUrl(i, grey) {{
   return SCENES[i][key];
 }}
 function show() {{
+  if (!SCENES.length) {{  // nothing to turn around (an evaluation without showcase meshes)
+    viewer.style.display = document.getElementById("controls").style.display = "none";
+    document.getElementById("figures").innerHTML = "";
+    return;
+  }}
   viewer.src = glbUrl(scene, plain);
   toggle.textContent = plain ? "colour by std" : "plain shading";
   document.getElementById("step").textContent = SCENES[scene].label;
