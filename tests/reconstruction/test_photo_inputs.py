@@ -38,6 +38,7 @@ def span_and_offset(rgba: torch.Tensor) -> tuple[float, float]:
 
 def test_an_object_framed_as_the_renders_frame_it_is_left_as_it_is():
     rendered = square_object(137, 25, 30, 88)  # spans 0.64, near the centre: R2N2's framing
+    # Exact on purpose: "left as it is" means frame_object returns pad_square's own result, no arithmetic.
     assert torch.equal(frame_object(rendered), pad_square(rendered))
     opaque = torch.ones(4, 60, 80)  # no alpha: the object is not marked, so nothing is re-framed
     assert torch.equal(frame_object(opaque), pad_square(opaque))
@@ -62,6 +63,7 @@ def test_a_photo_without_alpha_or_mask_is_refused_unless_its_background_is_plain
     check_cut_out(plain, "render.png")
     masked = cut_out(noisy, torch.zeros(64, 64, dtype=torch.bool).index_fill_(0, torch.arange(10, 30), True), "m")
     check_cut_out(masked, "photo.jpg")
+    # Exact on purpose: outside the mask the colour is multiplied by alpha 0, which is 0 in any rounding.
     assert float(masked[3].sum()) == 20 * 64 and torch.equal(masked[:3, :10], torch.zeros(3, 10, 64))
 
 
