@@ -170,8 +170,8 @@ def write_outputs(
     with timer("visibility"):  # only where the view's camera is known: a render of the world
         seen = [hidden_over_visible(mesh, std, w2c) if kind == "render" else None for _, w2c, kind in cameras]
     precision_record = {"requested": settings.precision, "resolved": precision, "why": why}
-    args = (out_dir, predictor, fusion, settings, encoded, mesh, std, stats, files, depth, seen, timer.seconds)
-    summary = write_summary(*args, precision_record)
+    args = (predictor, fusion, settings, encoded, mesh, std, stats, files, depth, seen, timer.seconds)
+    summary = summary_record(*args, precision_record)
     with timer("report"):
         prior = None
         if encoded.refinement is not None and not encoded.refinement.get("fallback"):
@@ -218,8 +218,7 @@ def mean_mesh(
         )
 
 
-def write_summary(
-    out_dir: Path,
+def summary_record(
     predictor: Predictor,
     fusion: Fusion,
     settings: ReconstructionSettings,
@@ -233,8 +232,9 @@ def write_summary(
     seconds: dict[str, float],
     precision: dict[str, str] | None = None,
 ) -> dict[str, Any]:
-    """summary.json: inputs, per-view uncertainty (trace of var), fusion's kept views, the refinement's record
-    (None without refinement), mesh, timings, paths, and the decoder's precision (requested, resolved, why)."""
+    """What summary.json holds (write_outputs writes it once the page is made): inputs, per-view uncertainty
+    (trace of var), fusion's kept views, the refinement's record (None without refinement), mesh, timings,
+    paths, and the decoder's precision (requested, resolved, why)."""
     fused, refinement, var, paths = encoded.prior, encoded.refinement, encoded.var, encoded.paths
     kept = set(fused.kept.tolist())
     summary = {
@@ -287,5 +287,4 @@ def write_summary(
         "files": files,
         "seconds": seconds,
     }
-    atomic.write_json(out_dir / SUMMARY_FILE, summary)
     return summary
