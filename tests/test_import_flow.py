@@ -82,9 +82,14 @@ def test_imports_run_only_downstream():
     assert not against, "imports against the flow " + FLOW_LINE + ":\n" + "\n".join(against)
 
 
-def test_the_readme_states_the_same_flow():
-    assert FLOW_LINE in (ROOT / "README.md").read_text(encoding="utf-8"), (
-        f"the README's layout section must quote the flow as written in this test: {FLOW_LINE}"
+def test_the_docs_state_the_same_flow():
+    """docs/package_layout.md quotes the flow in full; the README's layout section links to it."""
+    layout = ROOT / "docs" / "package_layout.md"
+    assert FLOW_LINE in layout.read_text(encoding="utf-8"), (
+        f"{layout.relative_to(ROOT)} must quote the flow as written in this test: {FLOW_LINE}"
+    )
+    assert "docs/package_layout.md" in (ROOT / "README.md").read_text(encoding="utf-8"), (
+        "the README's layout section must link docs/package_layout.md"
     )
 
 
