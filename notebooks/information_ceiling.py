@@ -26,11 +26,11 @@ import torch
 from ushape.data.layout import WorldIndex
 from ushape.decoder.artifacts import codes_file, load_codes
 from ushape.encoder.latent_metrics import spearman_correlation
-from ushape.evaluation.active import start_view
 from ushape.evaluation.active_diagnostics import RealisedDrops, ideal_rank_correlation
 from ushape.planning import ViewEncoder, active_reconstruction, build_strategy, candidate_views
 from ushape.planning.information import candidate_information, information_gain, surface_variance_drop
 from ushape.planning.observers import build_observer
+from ushape.planning.sequence import start_view
 from ushape.reconstruction.calibrated_fusion import refinement_prior
 from ushape.reconstruction.predictor import load_predictor
 

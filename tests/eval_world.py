@@ -23,7 +23,7 @@ from ushape.decoder.artifacts import CodeTable, codes_file, save_codes, save_dec
 from ushape.evaluation.code_metrics import Reconstructor
 from ushape.evaluation.encoders import EncoderRun
 from ushape.evaluation.protocols import EncoderSpec
-from ushape.evaluation.runner import Settings
+from ushape.evaluation.settings import Settings
 from ushape.evaluation.views import test_views
 
 RADII = {"test_0": 0.3, "test_1": 0.7}
@@ -117,20 +117,26 @@ def sphere_codes(tmp_path_factory):
 
 
 def tiny_settings(**overrides):
-    values = dict(
-        group_size=4,
-        resolution=24,
-        n_points=128,
-        sdf_points=200,
-        mc_samples=4,
-        single_view_scales=(1.0, 0.1),
-        corrupted_scales=(0.4, 0.1),
-        table4_k=2,
-        calibration_levels=10,
-        locality_points=200,
-        depth_size=16,
-    )
+    """The shared settings of a tiny evaluation (each protocol's own: tiny_protocols)."""
+    values = dict(group_size=4, resolution=24, n_points=128, calibration_levels=10)
     return Settings(**{**values, **overrides})
+
+
+# Each protocol's settings at a size that runs in seconds on the ellipsoid world.
+TINY_PROTOCOLS = {
+    "uncertainty": dict(sdf_points=200, mc_samples=4),
+    "corrupted": dict(scales=(0.4, 0.1), k=2, single_view_scales=(1.0, 0.1)),
+    "locality": dict(points=200),
+    "depth": dict(size=16),
+    "view_calibration": dict(k=2, sdf_points=200),
+}
+
+
+def tiny_protocols(names, **settings):
+    """The protocols `names` built from their YAML files at TINY_PROTOCOLS's sizes, `settings[name]` on top."""
+    from ushape.evaluation.plugin import load_protocols
+
+    return load_protocols(names, {n: {**TINY_PROTOCOLS.get(n, {}), **settings.get(n, {})} for n in names})
 
 
 def make_run(world, codes_dir, cache_dir, name, tmp_path, settings):
@@ -152,14 +158,18 @@ def evaluated_dir(sphere_world, sphere_codes, tmp_path_factory):
 
     from ushape.evaluation.report import write_results
     from ushape.evaluation.runner import evaluate_all
+    from ushape.evaluation.settings import PAPER_PROTOCOLS
+    from ushape.evaluation.showcase import Showcase
     from ushape.fusion.strategies import BayesianKFusion
 
     tmp = tmp_path_factory.mktemp("evaluation")
-    settings = tiny_settings(showcase_shapes=1)
+    settings = tiny_settings()
     runs = [make_run(sphere_world, sphere_codes, tmp / "cache", name, tmp, settings) for name in ("es", "nll", "l2")]
+    setting = (BayesianKFusion(k=2), "bayesian-2", 0.4)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        result = evaluate_all(runs, settings, tmp / "cache", (BayesianKFusion(k=2), "bayesian-2", 0.4), tmp / "out")
+        protocols = tiny_protocols(PAPER_PROTOCOLS)
+        result = evaluate_all(runs, settings, tmp / "cache", setting, tmp / "out", protocols, showcase=Showcase(1, 4))
     write_results(result, tmp / "out")
     return tmp / "out"
 

@@ -4,18 +4,13 @@ import math
 from dataclasses import replace
 
 import pytest
-from eval_world import make_run, tiny_settings
+from eval_world import make_run, tiny_protocols, tiny_settings
 
-from ushape.evaluation.active import (
-    method_name,
-    paired_gain,
-    reference_of,
-    start_view,
-    table_active,
-    views_to_reach,
-)
+from ushape.evaluation.active_tables import paired_gain, reference_of, table_active, views_to_reach
 from ushape.evaluation.report import write_results
 from ushape.evaluation.runner import evaluate_all
+from ushape.evaluation.showcase import Showcase
+from ushape.planning.sequence import ActivePlan, method_name, start_view
 
 STRATEGIES = ("uncertainty", "unseen-uncertainty", "farthest", "random", "oracle", "information")
 
@@ -23,9 +18,10 @@ STRATEGIES = ("uncertainty", "unseen-uncertainty", "farthest", "random", "oracle
 @pytest.fixture(scope="module")
 def active_result(sphere_world, sphere_codes, tmp_path_factory):
     tmp = tmp_path_factory.mktemp("active")
-    settings = tiny_settings(protocols=("active",), active_views=3, active_scales=(1.0, 0.1), showcase_shapes=0)
+    settings = tiny_settings()
+    protocols = tiny_protocols(["active"], active=dict(views=3, scales=(1.0, 0.1)))
     runs = [make_run(sphere_world, sphere_codes, tmp / "cache", name, tmp, settings) for name in ("es", "l2")]
-    result = evaluate_all(runs, settings, tmp / "cache", None, tmp / "out")
+    result = evaluate_all(runs, settings, tmp / "cache", None, tmp / "out", protocols, showcase=Showcase(0))
     write_results(result, tmp / "out", tensorboard=False)
     return result, tmp / "out"
 
@@ -146,21 +142,20 @@ def test_a_world_without_cameras_skips_the_protocol_and_says_why(sphere_world, s
     shutil.copytree(sphere_world.root, root)
     for path in root.glob("renders/*/views.npz"):
         path.unlink()  # photos without their cameras, as a Pix3D world
-    settings = tiny_settings(protocols=("active",), active_views=2)
+    settings = tiny_settings()
     run = make_run(WorldIndex.load(root), sphere_codes, tmp_path / "cache", "es", tmp_path, settings)
-    assert active_records(run, settings, load_codes(sphere_codes / codes_file("test"))) == ([], [])
+    codes = load_codes(sphere_codes / codes_file("test"))
+    assert active_records(run, settings, ActivePlan(views=2), codes) == ([], [])
     assert "Table A skipped" in caplog.text and "no cameras" in caplog.text
 
 
 def _kept_run(sphere_world, sphere_codes, tmp_path, **overrides):
     from ushape.decoder.artifacts import codes_file, load_codes
 
-    values = dict(
-        protocols=("active",), active_views=2, active_scales=(1.0,), active_strategies=("random", "information")
-    )
-    settings = tiny_settings(**{**values, **overrides})
+    plan = ActivePlan(**{**dict(views=2, scales=(1.0,), strategies=("random", "information")), **overrides})
+    settings = tiny_settings()
     run = make_run(sphere_world, sphere_codes, tmp_path / "cache", "es", tmp_path, settings)
-    return run, settings, load_codes(sphere_codes / codes_file("test"))
+    return run, settings, plan, load_codes(sphere_codes / codes_file("test"))
 
 
 def test_a_finished_sequence_is_kept_and_a_rerun_reads_it_instead_of_running_it(
@@ -170,36 +165,36 @@ def test_a_finished_sequence_is_kept_and_a_rerun_reads_it_instead_of_running_it(
 
     from ushape.evaluation import active
 
-    run, settings, codes = _kept_run(sphere_world, sphere_codes, tmp_path, active_shapes=1)
+    run, settings, plan, codes = _kept_run(sphere_world, sphere_codes, tmp_path, shapes=1)
     cache = tmp_path / "cache"
-    first = active.active_records(run, settings, codes, cache)
+    first = active.active_records(run, settings, plan, codes, cache)
     assert len(list((cache / "active").glob("*.json"))) == 2  # one shape x two strategies
     ran = []
     run_sequence = active.run_sequence
-    monkeypatch.setattr(active, "run_sequence", lambda *a, **k: ran.append(a[4]) or run_sequence(*a, **k))
+    monkeypatch.setattr(active, "run_sequence", lambda *a, **k: ran.append(a[5]) or run_sequence(*a, **k))
     # The same selection: nothing runs, and what comes back is what was computed (NaN included).
-    assert json.dumps(active.active_records(run, settings, codes, cache)) == json.dumps(first) and ran == []
+    assert json.dumps(active.active_records(run, settings, plan, codes, cache)) == json.dumps(first) and ran == []
     # A larger selection runs only the sequences not kept yet: the second shape's.
-    records, diagnostics = active.active_records(run, replace(settings, active_shapes=None), codes, cache)
+    records, diagnostics = active.active_records(run, settings, replace(plan, shapes=None), codes, cache)
     assert ran == ["random", "information"] and len(diagnostics) == 4
     assert json.dumps([r for r in records if r["shape_id"] == "test_0"]) == json.dumps(first[0])
     # No cache folder: every sequence runs.
-    active.active_records(run, settings, codes, None)
+    active.active_records(run, settings, plan, codes, None)
     assert ran == ["random", "information"] * 2
 
 
 def test_a_kept_sequence_is_keyed_by_what_decides_it(sphere_world, sphere_codes, tmp_path, caplog):
     from ushape.evaluation.active_cache import load_sequence, sequence_file
 
-    run, settings, codes = _kept_run(sphere_world, sphere_codes, tmp_path)
+    run, settings, plan, codes = _kept_run(sphere_world, sphere_codes, tmp_path)
     cache, code = tmp_path / "cache", codes.lookup("test_0")
 
-    def key(settings=settings, scale=1.0, observe="none", strategy="random", code=code):
-        return sequence_file(cache, run, settings, "test_0", code, scale, observe, strategy)
+    def key(settings=settings, plan=plan, scale=1.0, observe="none", strategy="random", code=code):
+        return sequence_file(cache, run, settings, plan, "test_0", code, scale, observe, strategy)
 
     base = key()
-    assert key(replace(settings, active_shapes=1, active_strategies=("random",), active_scales=(1.0, 0.1))) == base
-    assert key(replace(settings, active_refine_iterations=3)) != base
+    assert key(plan=replace(plan, shapes=1, strategies=("random",), scales=(1.0, 0.1))) == base
+    assert key(plan=replace(plan, refine_iterations=3)) != base
     assert key(replace(settings, seed=1)) != base and key(scale=0.1) != base
     assert key(observe="masks") != base and key(strategy="farthest") != base
     assert key(code=code + 1e-3) != base  # the shape's own code refitted (a world whose test codes are fitted)
@@ -208,7 +203,7 @@ def test_a_kept_sequence_is_keyed_by_what_decides_it(sphere_world, sphere_codes,
     assert refit != base
     (tmp_path / "refinement_calibration.json").write_text("{}")
     assert key() != refit
-    assert sequence_file(None, run, settings, "test_0", code, 1.0, "none", "random") is None
+    assert sequence_file(None, run, settings, plan, "test_0", code, 1.0, "none", "random") is None
     refit = key()
     refit.parent.mkdir(parents=True)
     for damaged in ('{"steps": [', '[{"steps": []}]', '{"steps": []}'):  # cut off, not a sequence, keys missing

@@ -5,12 +5,13 @@ import shutil
 
 import numpy as np
 import pytest
-from eval_world import N_VIEWS, B, make_run, tiny_settings
+from eval_world import N_VIEWS, B, make_run, tiny_protocols, tiny_settings
 
 from ushape.data.layout import WorldIndex
 from ushape.evaluation.depth_calibration import true_depths
+from ushape.evaluation.plugins.depth import Depth
 from ushape.evaluation.report import write_results
-from ushape.evaluation.runner import Settings, evaluate_all
+from ushape.evaluation.runner import evaluate_all
 
 
 def test_true_depth_is_the_mesh_rendered_again_unless_the_world_keeps_it_at_that_size(sphere_world, tmp_path):
@@ -34,9 +35,10 @@ def test_true_depth_is_the_mesh_rendered_again_unless_the_world_keeps_it_at_that
 
 
 def test_depth_protocol_scores_probabilistic_encoders_and_writes_table_d(sphere_world, sphere_codes, tmp_path):
-    settings = tiny_settings(protocols=("depth",), depth_views=1, depth_codes=6)
+    settings = tiny_settings()
+    protocols = tiny_protocols(["depth"], depth=dict(views=1, codes=6))
     runs = [make_run(sphere_world, sphere_codes, tmp_path / "cache", name, tmp_path, settings) for name in ("es", "l2")]
-    result = evaluate_all(runs, settings, tmp_path / "cache")
+    result = evaluate_all(runs, settings, tmp_path / "cache", protocols=protocols)
     rows = {(r["encoder"], r["method"]): r for r in result["depth"]}
     assert set(rows) == {("es", "implicit"), ("es", "mc M=6")}  # l2 predicts no variance
     for row in rows.values():
@@ -49,5 +51,5 @@ def test_depth_protocol_scores_probabilistic_encoders_and_writes_table_d(sphere_
     assert (out / "tabled.csv").is_file() and (out / "depth.csv").is_file()
     assert "Table D: depth uncertainty calibration" in (out / "tables.md").read_text()
     assert (out / "plots" / "calibration_depth.png").is_file()
-    with pytest.raises(ValueError, match="depth_methods"):
-        Settings(depth_methods=("sampled",))
+    with pytest.raises(ValueError, match="methods must be some of"):
+        Depth(methods=("sampled",))

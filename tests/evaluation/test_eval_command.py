@@ -39,7 +39,7 @@ def test_eval_writes_tables_and_the_setting_row_for_a_real_run(sphere_world, tmp
             "protocols=[single_view,uncertainty]",
             "protocol.resolution=24",
             "protocol.n_points=128",
-            "protocol.sdf_points=100",
+            "++plugins.uncertainty.sdf_points=100",
             "protocol.single_view_views=2",
             "fusion=bayesian_k",
             "fusion.k=3",

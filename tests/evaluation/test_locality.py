@@ -137,7 +137,7 @@ def test_evaluation_writes_table_l_for_the_probabilistic_encoders(evaluated_dir)
 def test_a_world_without_cameras_skips_table_l_with_a_warning(sphere_world, sphere_codes, tmp_path, caplog):
     import shutil
 
-    from eval_world import make_run, tiny_settings
+    from eval_world import make_run, tiny_protocols, tiny_settings
 
     from ushape.data.layout import WorldIndex
     from ushape.evaluation.runner import evaluate_all
@@ -147,9 +147,9 @@ def test_a_world_without_cameras_skips_table_l_with_a_warning(sphere_world, sphe
     for cameras in root.glob("renders/*/views.npz"):
         cameras.unlink()  # like real photos: no known camera
     world = WorldIndex.load(root)
-    settings = tiny_settings(protocols=("locality",))
+    settings = tiny_settings()
     run = make_run(world, sphere_codes, tmp_path / "cache", "es", tmp_path, settings)
     with caplog.at_level("WARNING"):
-        result = evaluate_all([run], settings, tmp_path / "cache")
-    assert result["locality"] == [] and result["locality_views"] == []
+        result = evaluate_all([run], settings, tmp_path / "cache", protocols=tiny_protocols(["locality"]))
+    assert result.get("locality", []) == [] and result.get("locality_views", []) == []
     assert "Table L skipped" in caplog.text and "no cameras" in caplog.text

@@ -3,7 +3,7 @@
 import warnings
 
 import pytest
-from eval_world import make_run, tiny_settings
+from eval_world import make_run, tiny_protocols, tiny_settings
 
 from ushape.evaluation.methods import ReconstructionMethod, method_variants
 from ushape.evaluation.report import build_tables
@@ -26,11 +26,11 @@ class MeanCode(ReconstructionMethod):
 
 
 def test_a_method_is_scored_as_rows_of_its_own_in_every_table(sphere_world, sphere_codes, tmp_path):
-    settings = tiny_settings(protocols=("single_view", "multi_view", "uncertainty"))
+    settings, protocols = tiny_settings(), tiny_protocols(["single_view", "multi_view", "uncertainty"])
     run = make_run(sphere_world, sphere_codes, None, "es", tmp_path, settings)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        result = evaluate_all([run], settings, None, methods=[Same(), MeanCode()])
+        result = evaluate_all([run], settings, None, protocols=protocols, methods=[Same(), MeanCode()])
     cells = {(r["encoder"], r["protocol"], r["method"]): r for r in result["summary"]}
     plain, same, mean = (cells[(e, "single", "single-view")] for e in ("es", "es+same", "es+mean"))
     assert same["iou"] == plain["iou"] and same["n"] == plain["n"] == 16  # the encoder's codes, scored again

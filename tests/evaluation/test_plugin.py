@@ -11,7 +11,7 @@ from hydra import compose, initialize_config_dir
 
 from ushape.evaluation.command import run_eval
 from ushape.evaluation.plugin import available, load_protocols
-from ushape.evaluation.settings import PAPER_PROTOCOLS, Settings
+from ushape.evaluation.settings import PAPER_PROTOCOLS
 
 CONF = str(Path(__file__).resolve().parents[2] / "conf")
 TOY = Path(__file__).resolve().parent / "toy_protocols"
@@ -20,11 +20,17 @@ TOY = Path(__file__).resolve().parent / "toy_protocols"
 def test_every_protocol_is_a_yaml_file_that_builds_its_class():
     names = sorted(available())
     assert names == sorted([*PAPER_PROTOCOLS, "active", "view_calibration"])
-    assert [p.name for p in load_protocols(names, Settings())] == names
+    assert [p.name for p in load_protocols(names)] == names
     with pytest.raises(ValueError, match=r"unknown protocols \['toy'\].*protocol_dirs"):
-        load_protocols(["toy"], Settings())
-    (toy,) = load_protocols(["toy"], Settings(), [TOY])
+        load_protocols(["toy"])
+    (toy,) = load_protocols(["toy"], dirs=[TOY])
     assert toy.weight == 0.5
+    (toy,) = load_protocols(["toy"], {"toy": {"weight": 2.0}}, [TOY])  # eval.py ++plugins.toy.weight=2
+    assert toy.weight == 2.0 and toy.config() == {"_target_": "toy_protocol.Toy", "weight": 2.0}
+    with pytest.raises(TypeError, match="has no setting 'wieght'"):
+        load_protocols(["toy"], {"toy": {"wieght": 2.0}}, [TOY])
+    with pytest.raises(ValueError, match="plugins.depht sets the settings of an unknown protocol"):
+        load_protocols(["depth"], {"depht": {"size": 8}})
 
 
 def test_a_protocol_and_a_method_from_the_tests_folder_run_through_eval_and_write_their_rows(
@@ -43,7 +49,8 @@ def test_a_protocol_and_a_method_from_the_tests_folder_run_through_eval_and_writ
         "protocol.resolution=24",
         "protocol.n_points=128",
         "protocol.single_view_views=2",
-        "protocol.showcase_shapes=0",
+        "showcase.shapes=0",
+        "++plugins.toy.weight=0.25",  # a protocol's own setting, by its name
         "methods=[{_target_:toy_method.Same}]",
     ]
     with initialize_config_dir(CONF, version_base="1.3"):
@@ -54,10 +61,11 @@ def test_a_protocol_and_a_method_from_the_tests_folder_run_through_eval_and_writ
     assert "### Table T: toy" in (out / "tables.md").read_text()
     with open(out / "tablet.csv") as f:
         rows = list(csv.DictReader(f))
-    assert rows == [  # 2 shapes x 2 views, weight 0.5; the method's row beside the encoder's
-        {"encoder": "nll", "views": "4", "weighted": "2.0"},
-        {"encoder": "nll+same", "views": "4", "weighted": "2.0"},
+    assert rows == [  # 2 shapes x 2 views, weight 0.25; the method's row beside the encoder's
+        {"encoder": "nll", "views": "4", "weighted": "1.0"},
+        {"encoder": "nll+same", "views": "4", "weighted": "1.0"},
     ]
+    assert (out / "toy.csv").is_file()  # its own rows, by its csvs hook
     result = json.loads((out / "results.json").read_text())
     single = [r for r in result["records"] if r["protocol"] == "single"]
     assert [sum(r["encoder"] == e for r in single) for e in ("nll", "nll+same")] == [4, 4]  # asked twice, scored once

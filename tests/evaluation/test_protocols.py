@@ -5,7 +5,7 @@ import warnings
 
 import pytest
 import torch
-from eval_world import LATENT, RADII, FakePredictor, make_run, tiny_settings
+from eval_world import LATENT, RADII, FakePredictor, make_run, tiny_protocols, tiny_settings
 
 from ushape.data.augment import (
     CROP_RATIO,
@@ -135,9 +135,9 @@ def test_another_world_with_the_same_shape_ids_is_encoded_anew(sphere_world, tmp
 
 
 def test_sphere_pipeline_scores_good_reconstructions_and_corruption_hurts(sphere_world, sphere_codes, tmp_path):
-    settings = tiny_settings(protocols=("single_view", "multi_view", "corrupted"))
+    settings, protocols = tiny_settings(), tiny_protocols(["single_view", "multi_view", "corrupted"])
     run = make_run(sphere_world, sphere_codes, tmp_path / "cache", "es", tmp_path, settings)
-    out = evaluate_encoder(run, settings, tmp_path / "cache")
+    out = evaluate_encoder(run, settings, tmp_path / "cache", protocols=protocols)
     cells = {(r["protocol"], r["min_scale"], r["method"]): r for r in P.summarise(out["records"])}
     clean = cells[("single", 1.0, "single-view")]
     assert clean["n"] == len(RADII) * 8 and clean["iou"] > 0.8 and "emd" in clean
@@ -150,7 +150,7 @@ def test_sphere_pipeline_scores_good_reconstructions_and_corruption_hurts(sphere
 def test_setting_row_warns_when_k_exceeds_the_views(sphere_world, sphere_codes, tmp_path):
     from ushape.fusion.strategies import BayesianKFusion
 
-    settings = tiny_settings(protocols=())
+    settings = tiny_settings()
     run = make_run(sphere_world, sphere_codes, None, "es", tmp_path, settings)
     with pytest.warns(UserWarning, match="only 4 views"):
         out = evaluate_encoder(run, settings, None, setting=(BayesianKFusion(k=6), "bayesian-6", 1.0))
@@ -162,11 +162,11 @@ def test_setting_row_warns_when_k_exceeds_the_views(sphere_world, sphere_codes, 
 def test_evaluate_all_runs_the_uncertainty_analysis_with_the_equal_variance_baseline(
     sphere_world, sphere_codes, tmp_path
 ):
-    settings = tiny_settings(protocols=("uncertainty",))
+    settings = tiny_settings()
     runs = [make_run(sphere_world, sphere_codes, None, name, tmp_path, settings) for name in ("es", "l2")]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        result = evaluate_all(runs, settings)
+        result = evaluate_all(runs, settings, protocols=tiny_protocols(["uncertainty"]))
     kinds = {(r["encoder"], r["space"], r["variance"], r["method"]) for r in result["uncertainty"]}
     assert ("es", "sdf", "predicted", "linearised") in kinds and ("es", "latent", "equal", "-") in kinds
     assert ("l2", "sdf", "predicted", "mc") not in kinds and ("l2", "sdf", "equal", "mc") in kinds
@@ -181,14 +181,14 @@ def test_view_calibration_protocol_scores_every_rule_and_writes_table_v(sphere_w
 
     from ushape.evaluation.report import build_figures, build_tables
 
-    settings = tiny_settings(protocols=("view_calibration",))
+    settings = tiny_settings()
     run = make_run(sphere_world, sphere_codes, None, "es", tmp_path, settings)
     record = {"temperature": 1.0, "shared_error": {"var": [0.1] * LATENT, "view_scale": 1.0}}
     record["shared_error"]["n_shapes"] = 2
     (run.predictor.checkpoint.parent / "temperature.json").write_text(json.dumps(record))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        result = evaluate_all([run], settings)
+        result = evaluate_all([run], settings, protocols=tiny_protocols(["view_calibration"]))
     rows = result["view_calibration"]
     assert {r["fusion"] for r in rows} >= {"bayesian", "shared", "intersection"}
     assert all(0 <= r["latent_calibration_error"] <= 0.5 and 0 <= r["sdf_coverage90"] <= 1 for r in rows)
@@ -201,10 +201,11 @@ def test_table3_fuses_by_the_calibrated_shared_rule_once_it_is_fitted(sphere_wor
 
     from ushape.evaluation.view_calibration import calibrated_rule
 
-    settings = tiny_settings(protocols=("multi_view",))
+    settings = tiny_settings()
     run = make_run(sphere_world, sphere_codes, None, "es", tmp_path, settings)
     assert calibrated_rule(run) == {}  # nothing fitted: the paper's rules only
-    assert "shared" not in {r["method"] for r in evaluate_encoder(run, settings, None)["records"]}
+    records = evaluate_encoder(run, settings, None, protocols=tiny_protocols(["multi_view"]))["records"]
+    assert "shared" not in {r["method"] for r in records}
     shared = {"var": [0.1] * LATENT, "view_scale": 0.5, "n_shapes": 3}
     (tmp_path / "temperature.json").write_text(json.dumps({"temperature": 2.0, "shared_error": shared}))
     # Fitted on variances scaled by T = 2: S + c (sum_v (T var_v)^-1)^-1 = 0.1 + 0.5 * 2 * 1 / 2.
@@ -214,7 +215,7 @@ def test_table3_fuses_by_the_calibrated_shared_rule_once_it_is_fitted(sphere_wor
     assert torch.allclose(
         calibrated_rule(run)["shared"](torch.zeros(2, LATENT), torch.ones(2, LATENT)).var, torch.full((LATENT,), 0.35)
     )
-    summary = P.summarise(evaluate_encoder(run, settings, None)["records"])
+    summary = P.summarise(evaluate_encoder(run, settings, None, protocols=tiny_protocols(["multi_view"]))["records"])
     cells = {r["method"]: r for r in summary}
     assert cells["shared"]["n"] == cells["bayesian"]["n"] == 4
     assert cells["shared"]["iou"] == cells["bayesian"]["iou"]  # Bayesian's mean: only a refinement tells them apart

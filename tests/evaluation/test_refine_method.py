@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from eval_world import IMAGE, RADII, build_sphere_world, make_run, tiny_settings
+from eval_world import IMAGE, RADII, build_sphere_world, make_run, tiny_protocols, tiny_settings
 
 import ushape.evaluation.refine_method as R
 import ushape.evaluation.views as V
@@ -35,8 +35,8 @@ PROTOCOLS = ("single_view", "multi_view", "corrupted", "uncertainty", "locality"
 FAST = dict(size=4, iterations=2)  # 4 x 4 rays, 2 steps: seconds for the whole world
 
 
-def _evaluate(world, codes, tmp_path, cache, methods, protocols=PROTOCOLS, **overrides):
-    settings = tiny_settings(protocols=protocols, **overrides)
+def _evaluate(world, codes, tmp_path, cache, methods, protocols=PROTOCOLS, **protocol_settings):
+    settings = tiny_settings()
     checkpoint = tmp_path / "es.ckpt"
     stamp = checkpoint.stat().st_mtime_ns if checkpoint.is_file() else None
     run = make_run(world, codes, cache, "es", tmp_path, settings)
@@ -44,7 +44,9 @@ def _evaluate(world, codes, tmp_path, cache, methods, protocols=PROTOCOLS, **ove
         os.utime(checkpoint, ns=(stamp, stamp))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return evaluate_all([run], settings, cache, methods=methods)
+        return evaluate_all(
+            [run], settings, cache, protocols=tiny_protocols(protocols, **protocol_settings), methods=methods
+        )
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +54,7 @@ def refined(sphere_world, sphere_codes, tmp_path_factory):
     """Every reconstructing protocol for a fake ES encoder, plainly and refined on masks, with a cache."""
     tmp = tmp_path_factory.mktemp("refined")
     method = R.RefineMethod("masks", **FAST)
-    result = _evaluate(sphere_world, sphere_codes, tmp, tmp / "cache", [method], corrupted_scales=(0.1,))
+    result = _evaluate(sphere_world, sphere_codes, tmp, tmp / "cache", [method], corrupted=dict(scales=(0.1,)))
     return result, tmp
 
 
@@ -104,7 +106,7 @@ def test_cropped_views_pull_the_code_to_the_shape_they_show(silhouette_world, sp
 
 def test_table_d_propagates_the_refined_covariance_to_depth(sphere_world, sphere_codes, tmp_path):
     method = R.RefineMethod("masks", **FAST)
-    result = _evaluate(sphere_world, sphere_codes, tmp_path, None, [method], ("depth",), depth_views=1)
+    result = _evaluate(sphere_world, sphere_codes, tmp_path, None, [method], ("depth",), depth=dict(views=1))
     rows = {(r["encoder"], r["method"]): r for r in result["depth"]}
     for kind in ("implicit", "mc M=10"):
         plain, refined = rows[("es", kind)], rows[("es+refine_masks", kind)]
@@ -219,7 +221,7 @@ def test_refinements_are_cached_and_reused(refined, sphere_world, sphere_codes, 
 
     monkeypatch.setattr(R, "refine", no_refinement)
     method = R.RefineMethod("masks", **FAST)
-    again = _evaluate(sphere_world, sphere_codes, tmp, tmp / "cache", [method], corrupted_scales=(0.1,))
+    again = _evaluate(sphere_world, sphere_codes, tmp, tmp / "cache", [method], corrupted=dict(scales=(0.1,)))
     mine = [r for r in result["records"] if r["encoder"] == "es+refine_masks"]
     assert [r for r in again["records"] if r["encoder"] == "es+refine_masks"] == mine
     assert sorted((tmp / "cache" / R.CACHE_FOLDER).glob("*.pt")) == files

@@ -135,7 +135,7 @@ def test_runs_are_resolved_from_folders_sweeps_or_the_newest(tmp_path):
 def test_error_tracking_table_has_a_row_per_probabilistic_encoder_and_crop(evaluated_dir):
     result = load_results(evaluated_dir)
     table = tables.table_error_tracking(result["error_tracking"])
-    crops = set(result["settings"]["single_view_scales"]) - {1.0}
+    crops = set(result["protocols"]["corrupted"]["single_view_scales"]) - {1.0}
     pooled = {f"1 & {s:g}" for s in crops}
     assert {r[1] for r in table.rows} == crops | {1.0} | pooled
     assert {r[0] for r in table.rows} == {"Ours", "Ours-NLL", "FroDO*"}

@@ -1,16 +1,18 @@
 """A protocol that lives outside the package: what a new protocol needs (this module and toy_protocols/toy.yaml)."""
 
+from dataclasses import dataclass
+from typing import ClassVar
+
 from ushape.evaluation.plugin import Output, Protocol
 from ushape.evaluation.tables import Table
 
 
+@dataclass
 class Toy(Protocol):
     """Per encoder: how many single-view records the context holds, and its own setting times that."""
 
-    name = "toy"
-
-    def __init__(self, weight: float = 1.0) -> None:
-        self.weight = weight
+    name: ClassVar[str] = "toy"
+    weight: float = 1.0
 
     def run(self, context) -> Output:
         records = context.single_view(1.0)  # shared with the single-view protocol: scored once
@@ -21,3 +23,6 @@ class Toy(Protocol):
         table = Table("Table T: toy", "single-view records per encoder", ["encoder", "views", "weighted"])
         table.rows = [[r["encoder"], r["views"], r["weighted"]] for r in result.get("toy", [])]
         return [table]
+
+    def csvs(self, result) -> dict:
+        return {"toy": result.get("toy", [])}

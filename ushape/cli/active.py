@@ -26,13 +26,13 @@ from PIL import Image
 from ushape import atomic
 from ushape.data.world import open_world
 from ushape.decoder.latent_gaussian import latent_trace
-from ushape.evaluation.active import loop_fusion, start_view, strategy_options
 from ushape.evaluation.code_metrics import Reconstructor
 from ushape.evaluation.plots import save_figure
 from ushape.planning import ViewEncoder, active_reconstruction, build_strategy, candidate_views
 from ushape.planning.candidates import SOURCES
 from ushape.planning.figures import sequence_figure, step_surfaces
 from ushape.planning.observers import OBSERVERS, build_observer
+from ushape.planning.sequence import loop_fusion, start_view, strategy_options
 from ushape.planning.strategies import STRATEGIES
 from ushape.reconstruction.export import DEFAULT_CMAP, colour_range, coloured_mesh, write_colour_bar, write_mesh_files
 from ushape.reconstruction.pretrained import PREFIX, open_model

@@ -12,7 +12,7 @@ it ends, keyed by everything that decides them:
 - the crop min scale, the observer, the strategy;
 - the settings a sequence reads (seed, split, views to take, candidates, rays and LM steps of the refinement,
   mesh resolution and scoring points, decoder precision), not those that only choose which sequences run
-  (`active_strategies`, `active_observe`, `active_scales`, `active_shapes`): a larger run reuses a smaller
+  (the plan's `strategies`, `observe`, `scales`, `shapes`): a larger run reuses a smaller
   one's sequences;
 - the bytes of the run's temperature.json and refinement_calibration.json (the calibrated prior a refined
   belief starts from, information-seen's floors): refitting either runs the sequences again;
@@ -40,20 +40,10 @@ log = logging.getLogger(__name__)
 
 CACHE_FOLDER = "active"
 VERSION = 2  # 2: the oracle under a refining observer scores the refined belief, not the fused code
-# The settings a sequence's result depends on (the others choose which sequences run, or other protocols).
-SEQUENCE_SETTINGS = (
-    "split",
-    "seed",
-    "resolution",
-    "n_points",
-    "precision",
-    "active_views",
-    "active_candidates",
-    "active_azimuths",
-    "active_elevations",
-    "active_refine_size",
-    "active_refine_iterations",
-)
+# The settings a sequence's result depends on (the others choose which sequences run, or other protocols):
+# the evaluation's shared ones, and the plan's (keyed as active_<name>, the spelling keys were made with).
+SEQUENCE_SETTINGS = ("split", "seed", "resolution", "n_points", "precision")
+SEQUENCE_PLAN = ("views", "candidates", "azimuths", "elevations", "refine_size", "refine_iterations")
 
 
 def file_digest(path: Path) -> str:
@@ -65,6 +55,7 @@ def sequence_file(
     cache_dir: Path | None,
     run,
     settings,
+    plan,
     shape_id: str,
     true_code: Tensor,  # [D] the shape's own code
     scale: float,
@@ -86,6 +77,7 @@ def sequence_file(
         observe,
         strategy,
         *(f"{name}={getattr(settings, name)!r}" for name in SEQUENCE_SETTINGS),
+        *(f"active_{name}={getattr(plan, name)!r}" for name in SEQUENCE_PLAN),
         file_digest(temperature_path(checkpoint)),
         file_digest(calibration_path(checkpoint)),
     ]

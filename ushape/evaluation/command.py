@@ -17,6 +17,7 @@ from ushape.evaluation.plugin import load_protocols
 from ushape.evaluation.report import write_results
 from ushape.evaluation.runner import evaluate_runs
 from ushape.evaluation.settings import PAPER_PROTOCOLS, Settings
+from ushape.evaluation.showcase import Showcase
 from ushape.evaluation.sources import resolve_runs
 from ushape.reconstruction.pretrained import PREFIX
 from ushape.training.summary import discard_if_bookkeeping_only
@@ -106,8 +107,10 @@ def _evaluate(cfg: DictConfig) -> float | None:
         markdown = gather(cfg.gather)
         print(markdown.read_text())
         return None
-    settings = build(cfg.protocol, Settings, protocols=protocols_for(cfg.protocols, _multirun()))
-    protocols = load_protocols(settings.protocols, settings, list(cfg.get("protocol_dirs") or []))
+    settings = build(cfg.protocol, Settings)
+    protocols = load_protocols(
+        protocols_for(cfg.protocols, _multirun()), cfg.get("plugins"), list(cfg.get("protocol_dirs") or [])
+    )
     given = cfg.get("runs") or cfg.get("sweep")
     runs = resolve_runs(cfg.get("runs"), cfg.get("sweep"), "." if given else cfg.paths.root_dir)
     out_dir = Path(cfg.out_dir) if cfg.get("out_dir") else default_out_dir(runs)
@@ -119,10 +122,11 @@ def _evaluate(cfg: DictConfig) -> float | None:
         Path(cfg.cache_dir) if cfg.get("cache_dir") else None,
         setting=configured_setting(cfg),
         world_dir=world_dir,
-        showcase_dir=out_dir if settings.protocols else None,
+        showcase_dir=out_dir if protocols else None,
         temperature=bool(cfg.get("temperature", False)),
         protocols=protocols,
         methods=build_methods(list(cfg.get("methods") or [])),
+        showcase=build(cfg.get("showcase"), Showcase),
     )
     paths = write_results(result, out_dir, tensorboard=cfg.tensorboard)
     page = evaluation_page(out_dir, f"evaluation of {', '.join(str(r) for r in runs)}")

@@ -8,7 +8,7 @@ from typing import Sequence
 from ushape.evaluation.tables import encoder_order
 from ushape.metrics.calibration import plot_calibration
 
-__all__ = ["iou_vs_k", "iou_vs_min_scale", "plot_calibration", "save_figure"]
+__all__ = ["calibration_figures", "iou_vs_k", "iou_vs_min_scale", "plot_calibration", "save_figure"]
 
 
 def _figure():
@@ -16,6 +16,19 @@ def _figure():
 
     fig = Figure(figsize=(5, 3.6))
     return fig, fig.add_subplot()
+
+
+def calibration_figures(result: dict, spaces: dict[str, str]) -> dict:
+    """calibration_<space> -> the reliability diagram (titled spaces[space]) of every encoder's curves in that
+    space of an evaluation's result, for each space that has curves."""
+    curves = result.get("curves", {})
+    return {
+        f"calibration_{space}": plot_calibration(
+            {name: (c["p"], c["freq"]) for name, c in curves[space].items()}, title
+        )
+        for space, title in spaces.items()
+        if curves.get(space)
+    }
 
 
 def iou_vs_k(summary: Sequence[dict], group_size: int, min_scale: float = 1.0):

@@ -3,11 +3,14 @@
 <out_dir>/results.json      everything (records, summary, uncertainty rows, calibration curves)
 <out_dir>/records.csv       one row per scored reconstruction
 <out_dir>/summary.csv       one row per table cell
-<out_dir>/table1.csv ... tables.md   the paper's tables (and ours: tableu, tablel, tabled)
-<out_dir>/depth.csv         depth-std calibration per encoder and depth method (Table D)
+<out_dir>/table1.csv ... tables.md   every protocol's tables (the paper's, and ours: tableu, tablel, tabled, ...)
+<out_dir>/<rows>.csv        a protocol's own rows (uncertainty.csv, depth.csv, ...: its `csvs` hook)
 <out_dir>/eval_row.json     the configured fusion/crop setting's rows (what a sweep gathers)
-<out_dir>/plots/*.png       calibration (latent, SDF, depth), IoU vs K, IoU vs min scale
-<out_dir>/tensorboard/      the same numbers and figures
+<out_dir>/plots/*.png       every protocol's figures (calibration, IoU vs K, IoU vs min scale, ...)
+<out_dir>/tensorboard/      the summary cells, every protocol's scalars, the figures and the tables
+
+Which tables, CSVs, figures and scalars there are is each protocol's own business (evaluation.plugin):
+this module loops over the protocols recorded in the result.
 """
 
 from __future__ import annotations
@@ -19,10 +22,9 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from ushape import atomic
-from ushape.evaluation import active, plots, tables
-from ushape.evaluation.active_diagnostics import table_active_why
+from ushape.evaluation import plots, tables
+from ushape.evaluation.plugin import protocols_of
 from ushape.evaluation.settings import RESULT_ROW, RESULTS
-from ushape.evaluation.view_calibration import plot_calibration_across_views
 
 PLOTS_DIR = "plots"
 
@@ -38,52 +40,14 @@ def rows_to_csv(rows: Sequence[dict]) -> str:
 
 
 def build_tables(result: dict[str, Any]) -> list[tables.Table]:
-    """The paper's tables that this evaluation has numbers for."""
-    summary, settings = result["summary"], result["settings"]
-    group = settings["group_size"]
-    built = [
-        tables.table1(summary),
-        tables.table3(summary, group),
-        tables.table4(summary, settings["table4_k"]),
-        tables.table5(summary, group),
-    ]
-    if result.get("uncertainty"):
-        built.append(tables.table_s1(result["uncertainty"], summary))
-    if result.get("error_tracking"):
-        built.append(tables.table_error_tracking(result["error_tracking"]))
-    if result.get("locality"):
-        built.append(tables.table_locality(result["locality"]))
-    if result.get("depth"):
-        built.append(tables.table_depth(result["depth"]))
-    if any(r["protocol"] == active.PROTOCOL for r in result["records"]):
-        built += [active.table_active(result["records"], metric) for metric in active.METRICS]
-    if result.get("active"):
-        built.append(table_active_why(result["active"]))
-    built += [tables.Table(**table) for table in result.get("tables", [])]  # a plug-in protocol's own
+    """Every table the evaluation's protocols have numbers for, protocol by protocol in the order they ran."""
+    built = [table for protocol in protocols_of(result) for table in protocol.tables(result)]
     return [t for t in built if t.rows]
 
 
 def build_figures(result: dict[str, Any]) -> dict[str, Any]:
-    """name -> matplotlib Figure for every plot this evaluation has data for."""
-    summary, settings = result["summary"], result["settings"]
-    figures = {}
-    for space, curves in result.get("curves", {}).items():
-        if curves:
-            title = {"latent": "Calibration, latent space", "depth": "Calibration, depth"}.get(
-                space, "Calibration, SDF space"
-            )
-            figures[f"calibration_{space}"] = plots.plot_calibration(
-                {name: (c["p"], c["freq"]) for name, c in curves.items()}, title
-            )
-    if any(r["protocol"] == "multi" and r["min_scale"] == 1.0 for r in summary):
-        figures["iou_vs_k"] = plots.iou_vs_k(summary, settings["group_size"])
-    if len({r["min_scale"] for r in summary if r["protocol"] == "multi"}) > 1:
-        figures["iou_vs_min_scale"] = plots.iou_vs_min_scale(summary, settings["table4_k"])
-    if result.get("view_calibration"):
-        figures["calibration_across_views"] = plot_calibration_across_views(result["view_calibration"])
-    if any(r["protocol"] == active.PROTOCOL for r in result["records"]):
-        figures["active_iou_vs_views"] = active.plot_active(result["records"])
-    return figures
+    """name -> matplotlib Figure for every plot the evaluation's protocols have data for."""
+    return {name: fig for protocol in protocols_of(result) for name, fig in protocol.figures(result).items()}
 
 
 def write_results(result: dict[str, Any], out_dir: str | Path, tensorboard: bool = True) -> dict[str, Path]:
@@ -91,9 +55,12 @@ def write_results(result: dict[str, Any], out_dir: str | Path, tensorboard: bool
     out_dir = Path(out_dir)
     atomic.write_json(out_dir / RESULTS, _finite(result))
     atomic.write_json(out_dir / RESULT_ROW, _finite(result.get("rows", [])))
-    for name in ("records", "summary", "uncertainty", "locality_views", "depth", "view_calibration"):
-        if result.get(name):
-            atomic.write_text(out_dir / f"{name}.csv", rows_to_csv(result[name]))
+    csvs = {"records": result["records"], "summary": result["summary"]}
+    for protocol in protocols_of(result):
+        csvs.update(protocol.csvs(result))
+    for name, rows in csvs.items():
+        if rows:
+            atomic.write_text(out_dir / f"{name}.csv", rows_to_csv(rows))
     built = build_tables(result)
     paths = {"results": out_dir / RESULTS}
     if built:
@@ -117,11 +84,9 @@ def write_tensorboard(result: dict[str, Any], built: Sequence[tables.Table], fig
             for metric in ("iou", "cd", "emd"):
                 if metric in row and math.isfinite(row[metric]):
                     writer.add_scalar(f"{tag}/{metric}", row[metric])
-        for row in result.get("uncertainty", []):
-            tag = f"{row['label']}/uncertainty_{row['space']}_{row['variance']}_{row['method']}"
-            for key, value in row.items():
-                if isinstance(value, float) and math.isfinite(value):
-                    writer.add_scalar(f"{tag}/{key}", value)
+        for protocol in protocols_of(result):
+            for tag, value in protocol.scalars(result).items():
+                writer.add_scalar(tag, value)
         for row in result.get("rows", []):
             writer.add_scalar(
                 f"{row['label']}/sweep_{row['fusion']}_scale{row['min_scale']:g}/multi_view_iou", row["multi_view_iou"]

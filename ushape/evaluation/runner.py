@@ -27,9 +27,9 @@ from ushape.evaluation import protocols as P
 from ushape.evaluation.context import EvalContext
 from ushape.evaluation.encoders import EncoderRun, load_encoder, mask_variants
 from ushape.evaluation.methods import ReconstructionMethod, fallback_lines, method_variants
-from ushape.evaluation.plugin import Protocol, load_protocols
-from ushape.evaluation.settings import RESULTS, ROW_KEYS, Settings
-from ushape.evaluation.showcase import save_showcase
+from ushape.evaluation.plugin import Protocol
+from ushape.evaluation.settings import RESULTS, Settings
+from ushape.evaluation.showcase import Showcase, save_showcase
 from ushape.evaluation.views import encode_views
 
 log = logging.getLogger(__name__)
@@ -40,17 +40,13 @@ def evaluate_encoder(
     settings: Settings,
     cache_dir: Path | None,
     setting: tuple[Callable, str, float] | None = None,
-    protocols: Sequence[Protocol] | None = None,
+    protocols: Sequence[Protocol] = (),
 ) -> dict[str, list]:
-    """Records of every protocol asked for, their row lists and curves, and the configured setting's row.
-
-    protocols: the built protocol objects (default: settings.protocols built from conf/protocol/plugins/).
-    """
-    protocols = load_protocols(settings.protocols, settings) if protocols is None else protocols
+    """Records of every protocol asked for, their row lists and curves, and the configured setting's row."""
     asked = {p.name: p for p in protocols if run.only is None or p.name in run.only}
     context = EvalContext(run, settings, cache_dir, asked)
     outputs = [context.output(name) for name in asked]
-    out: dict[str, Any] = {**{key: [] for key in ROW_KEYS}, "curves": {}}
+    out: dict[str, Any] = {"records": [], "rows": [], "curves": {}}
     out["records"] = context.records() + [record for output in outputs for record in output.records]
     for output in outputs:
         for key, rows in output.rows.items():
@@ -100,8 +96,9 @@ def evaluate_runs(
     world_dir: str | Path | None = None,
     showcase_dir: Path | None = None,
     temperature: bool = False,
-    protocols: Sequence[Protocol] | None = None,
+    protocols: Sequence[Protocol] = (),
     methods: Sequence[ReconstructionMethod] = (),
+    showcase: Showcase = Showcase(),
 ) -> dict[str, Any]:
     """Load every run folder's encoder and evaluate them all (see `evaluate_all`)."""
     if not run_dirs:
@@ -113,7 +110,9 @@ def evaluate_runs(
     opened: dict[Path, WorldIndex] = {}
     runs = [load_encoder(run_dir, settings, cache_dir, taken, world_dir, temperature, opened) for run_dir in run_dirs]
     variants = [(variant, run_dir) for run, run_dir in zip(runs, run_dirs) for variant in mask_variants(run)]
-    result = evaluate_all([v for v, _ in variants], settings, cache_dir, setting, showcase_dir, protocols, methods)
+    result = evaluate_all(
+        [v for v, _ in variants], settings, cache_dir, setting, showcase_dir, protocols, methods, showcase
+    )
     for run, run_dir in variants:
         for method in [None, *methods]:
             name = run.spec.name if method is None else f"{run.spec.name}+{method.name}"
@@ -128,23 +127,21 @@ def evaluate_all(
     cache_dir: Path | None = None,
     setting: tuple[Callable, str, float] | None = None,
     showcase_dir: Path | None = None,
-    protocols: Sequence[Protocol] | None = None,
+    protocols: Sequence[Protocol] = (),
     methods: Sequence[ReconstructionMethod] = (),
+    showcase: Showcase = Showcase(),
 ) -> dict[str, Any]:
-    """Every protocol for every encoder -> {records, summary, uncertainty, curves, rows, runs, settings, seconds}.
+    """Every protocol for every encoder -> {records, rows, each protocol's row lists, curves, runs, summary,
+    settings, protocols, seconds}.
 
-    With showcase_dir, the first shapes' reconstructions with uncertainty are saved there (see showcase),
-    and each protocol's figures. protocols: as evaluate_encoder's. methods: reconstruction methods each
-    encoder is scored with too, as rows of their own (see methods).
+    protocols: the built protocol objects (evaluation.plugin.load_protocols), run in this order. With
+    showcase_dir, the first shapes' reconstructions with uncertainty are saved there (see showcase), and
+    each protocol's figures. methods: reconstruction methods each encoder is scored with too, as rows of
+    their own (see methods).
     """
     started = time.time()
-    protocols = load_protocols(settings.protocols, settings) if protocols is None else protocols
     runs = [variant for run in runs for variant in method_variants(run, methods)]
-    result: dict[str, Any] = {
-        **{key: [] for key in ROW_KEYS},
-        "curves": {"latent": {}, "sdf": {}, "depth": {}},
-        "runs": {},
-    }
+    result: dict[str, Any] = {"records": [], "rows": [], "curves": {}, "runs": {}}
     for run in runs:
         log.info("evaluating %s on %d views of %s", run.spec.label, len(run.keys), run.world.root)
         part = evaluate_encoder(run, settings, cache_dir, setting, protocols)
@@ -159,23 +156,23 @@ def evaluate_all(
             "label": run.spec.label,
         }
         if showcase_dir is not None and run.only is None and run.method is None:
-            save_figures(run, settings, cache_dir, showcase_dir, protocols)
+            save_figures(run, settings, cache_dir, showcase_dir, protocols, showcase)
     for protocol in protocols:
         result["records"] += protocol.after_all(runs, settings, cache_dir)
     result["summary"] = P.summarise(result["records"])
     for line in fallback_lines(result["summary"]):
         log.info(line)
     result["settings"] = {k: (list(v) if isinstance(v, (tuple, range)) else v) for k, v in vars(settings).items()}
-    extra = [vars(table) for protocol in protocols for table in protocol.tables(result)]
-    if extra:
-        result["tables"] = extra
+    result["protocols"] = {protocol.name: protocol.config() for protocol in protocols}
     result["seconds"] = round(time.time() - started, 1)
     return result
 
 
-def save_figures(run: EncoderRun, settings: Settings, cache_dir: Path | None, out_dir: Path, protocols) -> None:
+def save_figures(
+    run: EncoderRun, settings: Settings, cache_dir: Path | None, out_dir: Path, protocols, showcase: Showcase
+) -> None:
     """The showcase meshes of one encoder (see showcase) and every protocol's figures, under out_dir."""
-    if settings.showcase_shapes > 0:
+    if showcase.shapes > 0:
         encodings = encode_views(
             run.predictor, run.world, run.keys, 1.0, settings.seed, cache_dir, mask_input=run.mask_input
         )
@@ -184,9 +181,9 @@ def save_figures(run: EncoderRun, settings: Settings, cache_dir: Path | None, ou
             encodings,
             out_dir,
             settings.group_size,
-            settings.showcase_shapes,
+            showcase.shapes,
             settings.resolution,
-            settings.mc_samples,
+            showcase.mc_samples,
         )
     for protocol in protocols:
         protocol.save_figures(run, settings, out_dir)

@@ -8,6 +8,7 @@ per-vertex SDF std by Monte Carlo) and as a PNG coloured by that std (blue: sure
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +26,19 @@ from ushape.mesh.preview import PREVIEW_VIEW
 from ushape.propagation import vertex_uncertainty
 
 SHOWCASE_DIR = "meshes"
+
+
+@dataclass
+class Showcase:
+    """What an evaluation saves for people to look at (conf/eval.yaml's `showcase`): the first `shapes` test
+    shapes' reconstructions (0: none), their per-vertex std from `mc_samples` Monte Carlo codes."""
+
+    shapes: int = 2
+    mc_samples: int = 10
+
+    def __post_init__(self) -> None:
+        if self.shapes < 0 or self.mc_samples < 2:
+            raise ValueError(f"showcase.shapes must be >= 0 and showcase.mc_samples >= 2, got {self}")
 
 
 def uncertainty_colours(std: np.ndarray, vmax: float | None = None) -> np.ndarray:

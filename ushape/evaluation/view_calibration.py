@@ -211,18 +211,21 @@ def calibrated_rule(run) -> dict[str, FusionRule]:
     return {} if rule is None else {"shared": rule}
 
 
-def view_calibration_protocol(run, settings, encodings, codes, draws: int = 6, after=None) -> list[dict]:
+def view_calibration_protocol(
+    run, seed: int, encodings, codes, draws: int = 6, k: int = 4, n_sdf: int = 1024, after=None
+) -> list[dict]:
     """Table V's rows for one evaluated run: every rule at 1, 3 and 10 fused test views, latent and SDF.
 
     All rules fuse the temperature-scaled view variances (the shared error was fitted on them): the
     stored T is applied here where the evaluation did not apply it already. after: a method's step after
-    fusion, (fused Gaussian, view keys) -> the Gaussian scored (None: the fused one).
+    fusion, (fused Gaussian, view keys) -> the Gaussian scored (None: the fused one). k: Bayesian-K's K;
+    n_sdf: ground-truth SDF samples per shape.
     """
     from ushape.data.sdf_dataset import sdf_points
 
     if not run.spec.probabilistic:
         return []
-    rules, latent_t, sdf_t = evaluation_rules(run.predictor.checkpoint, settings.table4_k)
+    rules, latent_t, sdf_t = evaluation_rules(run.predictor.checkpoint, k)
     scale = latent_t if latent_t is not None and run.predictor.temperature is None else 1.0
     sdf_t = run.predictor.sdf_temperature if run.predictor.sdf_temperature is not None else sdf_t
     ids = list(dict.fromkeys(key.shape_id for key in encodings.keys))
@@ -237,7 +240,7 @@ def view_calibration_protocol(run, settings, encodings, codes, draws: int = 6, a
     for shape_id in ids:
         rows = [i for i, key in enumerate(encodings.keys) if key.shape_id == shape_id]
         views.append((encodings.mu[rows], encodings.var[rows] * scale, codes.lookup(shape_id)))
-        sdf.append(sdf_points(run.world, shape_id, settings.sdf_points))
+        sdf.append(sdf_points(run.world, shape_id, n_sdf))
         keys = [encodings.keys[i] for i in rows]
         steps.append(lambda fused, subset, keys=keys: counted(fused, [keys[j] for j in subset]))
     decoder = run.predictor.decoder
@@ -245,7 +248,7 @@ def view_calibration_protocol(run, settings, encodings, codes, draws: int = 6, a
         rules,
         views,
         draws=draws,
-        seed=settings.seed,
+        seed=seed,
         sdf=sdf,
         decoder=decoder,
         sdf_temperature=sdf_t,

@@ -139,15 +139,15 @@ TINY_EVAL = [
     "tensorboard=false",
     "protocol.resolution=16",
     "protocol.n_points=64",
-    "protocol.sdf_points=64",
-    "protocol.mc_samples=2",
+    "++plugins.uncertainty.sdf_points=64",
+    "++plugins.uncertainty.mc_samples=2",
     "protocol.code_iterations=5",
     "protocol.single_view_views=null",
-    "protocol.sdf_views=2",
-    "protocol.showcase_shapes=0",
+    "++plugins.uncertainty.sdf_views=2",
+    "showcase.shapes=0",
     "protocol.calibration_levels=5",
-    "protocol.corrupted_scales=[0.4]",
-    "protocol.single_view_scales=[1.0,0.1]",
+    "++plugins.corrupted.scales=[0.4]",
+    "++plugins.corrupted.single_view_scales=[1.0,0.1]",
 ]
 
 

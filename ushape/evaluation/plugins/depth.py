@@ -6,25 +6,38 @@ covariance goes through the depth propagation as it is)."""
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
+from typing import ClassVar, Sequence
 
+from ushape.evaluation import plots, tables
 from ushape.evaluation.depth_calibration import depth_calibration_rows
 from ushape.evaluation.locality import has_cameras
 from ushape.evaluation.plugin import Output, Protocol
 from ushape.evaluation.uncertainty_protocol import curves_to_json
+from ushape.propagation.depth_implicit import DEPTH_METHODS
 
 log = logging.getLogger(__name__)
 
 
+@dataclass
 class Depth(Protocol):
     """size: depth-map pixels per side; views: each shape's first views (None: all); methods: implicit
     and/or mc; codes: Monte Carlo codes traced; steps: sphere-tracing steps per ray."""
 
-    name = "depth"
+    name: ClassVar[str] = "depth"
+    size: int = 48
+    views: int | None = 2
+    methods: Sequence[str] = ("implicit", "mc")
+    codes: int = 10
+    steps: int = 50
 
-    def __init__(
-        self, size: int = 48, views: int | None = 2, methods=("implicit", "mc"), codes: int = 10, steps: int = 50
-    ) -> None:
-        self.size, self.views, self.methods, self.codes, self.steps = size, views, list(methods), codes, steps
+    def __post_init__(self) -> None:
+        self.methods = list(self.methods)
+        if not set(self.methods) <= set(DEPTH_METHODS) or self.size < 1 or self.codes < 2:
+            raise ValueError(
+                f"depth: methods must be some of {DEPTH_METHODS}, size >= 1 and codes >= 2; "
+                f"got {self.methods}, {self.size}, {self.codes}"
+            )
 
     def run(self, context) -> Output:
         run, settings = context.run, context.settings
@@ -45,3 +58,12 @@ class Depth(Protocol):
             settings.seed,
         )
         return Output(rows={"depth": rows}, curves={"depth": curves_to_json(curves)})
+
+    def tables(self, result) -> list:
+        return [tables.table_depth(result["depth"])] if result.get("depth") else []
+
+    def figures(self, result) -> dict:
+        return plots.calibration_figures(result, {"depth": "Calibration, depth"})
+
+    def csvs(self, result) -> dict:
+        return {"depth": result.get("depth", [])}

@@ -7,7 +7,10 @@ A reconstruction method is scored on the Gaussians it reconstructs each view wit
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
+from typing import ClassVar
 
+from ushape.evaluation import tables
 from ushape.evaluation.locality import has_cameras, locality_records, summarise_locality
 from ushape.evaluation.plugin import Output, Protocol
 from ushape.fusion.rules import fuse_bayesian
@@ -15,14 +18,15 @@ from ushape.fusion.rules import fuse_bayesian
 log = logging.getLogger(__name__)
 
 
+@dataclass
 class Locality(Protocol):
     """points: ground-truth surface points per shape; scale: the crops' min area; views: each shape's
     first views only (None: all)."""
 
-    name = "locality"
-
-    def __init__(self, points: int = 2048, scale: float = 0.1, views: int | None = None) -> None:
-        self.points, self.scale, self.views = points, scale, views
+    name: ClassVar[str] = "locality"
+    points: int = 2048
+    scale: float = 0.1
+    views: int | None = None
 
     def run(self, context) -> Output:
         run, settings = context.run, context.settings
@@ -51,3 +55,9 @@ class Locality(Protocol):
             fuse=fused,
         )
         return Output(rows={"locality_views": views, "locality": summarise_locality(views)})
+
+    def tables(self, result) -> list:
+        return [tables.table_locality(result["locality"])] if result.get("locality") else []
+
+    def csvs(self, result) -> dict:
+        return {"locality_views": result.get("locality_views", [])}
