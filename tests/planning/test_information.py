@@ -23,7 +23,7 @@ from ushape.planning.information import (
     seen_floor_drop,
     surface_variance_drop,
 )
-from ushape.planning.observers import build_observer
+from ushape.planning.plugins import build_observer
 from ushape.refinement import ObservationSettings, RefineSettings, crop_camera
 
 SIZE = 24

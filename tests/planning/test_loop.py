@@ -12,7 +12,7 @@ from eval_world import FakePredictor
 
 from ushape.data.augment import corrupted_view, load_rgba, view_seed
 from ushape.fusion.rules import FusedCode, fuse_bayesian
-from ushape.planning import ViewEncoder, active_reconstruction, build_strategy, candidate_views
+from ushape.planning import SequenceContext, ViewEncoder, active_reconstruction, build_strategy, candidate_views
 from ushape.planning.candidates import CandidateViews
 from ushape.planning.loop import PlanState
 from ushape.planning.strategies import LatentOracle, occupancy_iou
@@ -117,7 +117,8 @@ def test_under_a_refining_observer_the_oracle_scores_the_refined_belief_not_the_
     # view 1 on (5.5, 5): the oracle takes what the loop would believe, refined on the views taken plus each.
     np.testing.assert_allclose(scores[1:], [-np.hypot(3.5, 5.0), 0.0])
     assert seen == [["view 0", "view 1"], ["view 0", "view 2"]]  # each refined on every view, as acquired
-    assert build_strategy("oracle", true_code=torch.zeros(2), observer=Refiner()).observer is not None
+    context = SequenceContext(true_code=torch.zeros(2), observer=Refiner())
+    assert build_strategy("oracle", context).observer is not None
 
 
 def test_the_occupancy_oracle_scores_the_shape_so_a_code_direction_the_surface_ignores_costs_nothing():
@@ -134,7 +135,7 @@ def test_the_occupancy_oracle_scores_the_shape_so_a_code_direction_the_surface_i
     truth = torch.tensor([0.5, 0.0])
     latent = LatentOracle(truth).scores(state)
     assert latent[2] > latent[1]  # fused (0.5, 2) is 2 away, (0.4, 0) only 0.1: the latent oracle takes view 2
-    oracle = build_strategy("oracle-occupancy", true_code=truth, n_points=20000)
+    oracle = build_strategy("oracle-occupancy", SequenceContext(true_code=truth), n_points=20000)
     shape = oracle.scores(state)
     # View 1's fused code draws the true sphere (IoU 1); view 2's a sphere of radius 0.4: IoU (0.4 / 0.5)^3.
     assert shape[1] == 0.0 and shape[0] == -np.inf

@@ -28,12 +28,18 @@ from ushape.data.world import open_world
 from ushape.decoder.latent_gaussian import latent_trace
 from ushape.evaluation.code_metrics import Reconstructor
 from ushape.evaluation.plots import save_figure
-from ushape.planning import ViewEncoder, active_reconstruction, build_strategy, candidate_views
+from ushape.planning import (
+    SequenceContext,
+    ViewEncoder,
+    active_reconstruction,
+    build_observer,
+    build_strategy,
+    candidate_views,
+)
 from ushape.planning.candidates import SOURCES
 from ushape.planning.figures import sequence_figure, step_surfaces
-from ushape.planning.observers import OBSERVERS, build_observer
-from ushape.planning.sequence import loop_fusion, start_view, strategy_options
-from ushape.planning.strategies import STRATEGIES
+from ushape.planning.plugins import strategy_names
+from ushape.planning.sequence import loop_fusion, start_view
 from ushape.reconstruction.export import DEFAULT_CMAP, colour_range, coloured_mesh, write_colour_bar, write_mesh_files
 from ushape.reconstruction.pretrained import PREFIX, open_model
 from ushape.reconstruction.report_page import Scene, write_report
@@ -52,14 +58,18 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--split", default="test", help="the split the shape is taken from")
     parser.add_argument("--shape", default=None, help="shape id (default: the split's first)")
     parser.add_argument(
-        "--strategy", default="uncertainty", choices=list(STRATEGIES), help="how the next view is chosen"
+        "--strategy",
+        default="uncertainty",
+        help=f"how the next view is chosen: {', '.join(strategy_names())}, or a file of --strategy-dir",
     )
+    parser.add_argument("--strategy-dir", action="append", default=[], help="a folder of strategy YAML files")
     parser.add_argument(
         "--observe",
         default="none",
-        choices=list(OBSERVERS),
-        help="after each view: none (the fused Gaussian), or refine it on every view taken (masks, depth)",
+        help="after each view: none (the fused Gaussian), or refine it on every view taken (masks, depth), "
+        "or a file of --observer-dir",
     )
+    parser.add_argument("--observer-dir", action="append", default=[], help="a folder of observer YAML files")
     parser.add_argument("--refine-size", type=int, default=24, help="rays per image side (refinement, information)")
     parser.add_argument("--refine-iterations", type=int, default=15, help="Levenberg-Marquardt steps at most")
     parser.add_argument("--views", type=int, default=6, help="views to acquire, the start view included")
@@ -114,9 +124,10 @@ def run_active(args: argparse.Namespace) -> dict:
         raise ValueError(
             f"--refine-size and --refine-iterations must be >= 1, got {args.refine_size}, {args.refine_iterations}"
         )
-    observer = build_observer(args.observe, size=args.refine_size, iterations=args.refine_iterations)
-    options = strategy_options(args.strategy, args.refine_size, predictor, observer)
-    strategy = build_strategy(args.strategy, args.seed, **options)
+    context = SequenceContext(args.seed, None, None, predictor, args.refine_size, args.refine_iterations)
+    context.observer = build_observer(args.observe, context, args.observer_dir)
+    strategy = build_strategy(args.strategy, context, args.strategy_dir)
+    observer = context.observer
     fusion = loop_fusion(predictor, observer)  # refined: the prior reconstruct.py refines, as Table A
     steps = active_reconstruction(
         candidates,

@@ -21,9 +21,9 @@ from ushape.evaluation.active_diagnostics import RealisedDrops, decision_diagnos
 from ushape.evaluation.active_tables import PROTOCOL
 from ushape.evaluation.locality import has_cameras
 from ushape.evaluation.plots import save_figure
-from ushape.planning import ViewEncoder, active_reconstruction, build_strategy
+from ushape.planning import SequenceContext, ViewEncoder, active_reconstruction, build_strategy
 from ushape.planning.figures import sequence_figure, step_surfaces
-from ushape.planning.information import INFORMATION_STRATEGIES
+from ushape.planning.plugins import predicts_rows
 from ushape.planning.sequence import (
     ActivePlan,
     method_name,
@@ -87,7 +87,7 @@ def run_sequence(run, settings, plan: ActivePlan, candidates, encode, name: str,
     return {
         "steps": step_records(run, candidates.shape_id, steps),
         "spread": view_spread(steps, candidates),
-        "decisions": decision_diagnostics(steps, drops, run.predictor.decoder, name in INFORMATION_STRATEGIES),
+        "decisions": decision_diagnostics(steps, drops, run.predictor.decoder, predicts_rows(name, plan.strategy_dirs)),
     }
 
 
@@ -119,7 +119,7 @@ def save_active_sequence(run, settings, plan: ActivePlan, out_dir: Path, strateg
         steps = active_reconstruction(
             candidates,
             encode,
-            build_strategy(strategy, settings.seed),
+            build_strategy(strategy, SequenceContext(seed=settings.seed), plan.strategy_dirs),
             run.predictor.decoder,
             plan.views,
             start,

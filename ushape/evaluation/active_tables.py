@@ -9,7 +9,7 @@ from typing import Sequence
 import numpy as np
 
 from ushape.evaluation.tables import Table, encoder_order
-from ushape.planning.strategies import ORACLES
+from ushape.planning.plugins import is_oracle
 
 PROTOCOL = "active"
 REFERENCE = "random"
@@ -123,10 +123,18 @@ def plot_active(records: Sequence[dict]):
                 views = sorted(curve)
                 mean = np.array([np.nanmean(curve[k]) for k in views])
                 se = np.array([standard_error(curve[k]) for k in views])
-                style = {"linestyle": ":"} if method.partition("+")[0] in ORACLES else {}
+                style = {"linestyle": ":"} if _oracle(method.partition("+")[0]) else {}
                 (line,) = ax.plot(views, mean, marker="o", label=f"{encoder} {method}", **style)
                 ax.fill_between(views, mean - se, mean + se, color=line.get_color(), alpha=0.15)
             ax.set(xlabel="views taken", ylabel=name, title=f"{name}, crops of area [{scale:g}, 1]")
             ax.legend(fontsize="x-small")
     fig.tight_layout()
     return fig
+
+
+def _oracle(strategy: str) -> bool:
+    """Whether a strategy of the records looks at the answer (False for one this tree does not know)."""
+    try:
+        return is_oracle(strategy)
+    except ValueError:
+        return False

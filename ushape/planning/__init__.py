@@ -2,16 +2,17 @@
 
 from ushape.planning.candidates import CandidateViews, candidate_views, orbit_views, recorded_views
 from ushape.planning.loop import PlanState, Step, Surface, ViewEncoder, active_reconstruction, surface_of
-from ushape.planning.strategies import STRATEGIES, build_strategy
+from ushape.planning.plugins import SequenceContext, build_observer, build_strategy
 
 __all__ = [
-    "STRATEGIES",
     "CandidateViews",
     "PlanState",
+    "SequenceContext",
     "Step",
     "Surface",
     "ViewEncoder",
     "active_reconstruction",
+    "build_observer",
     "build_strategy",
     "candidate_views",
     "orbit_views",

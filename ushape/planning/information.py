@@ -125,6 +125,7 @@ class InformationGain:
     """
 
     name = "information"
+    predicts_rows = True  # scored on the rows a view would add, predicted at the current mean
 
     def __init__(
         self, mode: str | None = None, size: int = 24, sigma_mask: float = 0.5, sigma_depth: float = 0.02
@@ -134,6 +135,11 @@ class InformationGain:
         if size < 1:
             raise ValueError(f"size (rays per image side) must be >= 1, got {size}")
         self.mode, self.size, self.sigma_mask, self.sigma_depth = mode, size, sigma_mask, sigma_depth
+
+    @classmethod
+    def for_sequence(cls, context, **settings):
+        """The sequence's rays per side (the refinement's), unless the settings give them."""
+        return cls(**{"size": context.size, **settings})
 
     def settings(self, observes: str) -> RefineSettings:
         mode = self.mode or ("depth" if observes == "depth" else "masks")
@@ -225,6 +231,17 @@ class SeenInformationGain(SurfaceInformationGain):
         super().__init__(**options)
         self.floors = floors
 
+    @classmethod
+    def for_sequence(cls, context, **settings):
+        """The floors of the predictor's run's seen model, fitted for what the loop observes (masks where it
+        observes nothing), unless the settings give them."""
+        if "floors" not in settings and context.predictor is not None:
+            from ushape.reconstruction.refine_calibration import seen_model
+
+            observes = getattr(context.observer, "name", "none")
+            settings["floors"] = seen_model(context.predictor.checkpoint, observes)
+        return super().for_sequence(context, **settings)
+
     def scores(self, state) -> np.ndarray:  # state: ushape.planning.loop.PlanState
         surface = state.surface
         latent = super().scores(state)
@@ -234,7 +251,3 @@ class SeenInformationGain(SurfaceInformationGain):
         return f["sdf_temperature"] * latent + seen_floor_drop(
             surface.visible, surface.seen, surface.area, f["floor_seen"], f["floor_unseen"]
         )
-
-
-# Scored on predicted rows (their options: rays per side `size`, the residuals' stds; information-seen: `floors`).
-INFORMATION_STRATEGIES = (InformationGain.name, SurfaceInformationGain.name, SeenInformationGain.name)

@@ -7,7 +7,7 @@
   to the full-covariance Laplace posterior. The posterior is what the strategy then plans on and what
   the step's code is scored by.
 
-Each observer is a class with a `name`; `OBSERVERS` lists them for the configuration (active_observe).
+Each observer is named by its file conf/observer/<name>.yaml (see planning.plugins), which builds its class.
 """
 
 from __future__ import annotations
@@ -48,6 +48,11 @@ class RefinedPosterior:
         self.name = mode
         self.settings = refine_settings(mode, size, sigma_mask, sigma_depth, iterations, information_scale)
 
+    @classmethod
+    def for_sequence(cls, context, **settings):
+        """The sequence's rays per side and Levenberg-Marquardt steps, unless the settings give them."""
+        return cls(**{"size": context.size, "iterations": context.iterations, **settings})
+
     def __call__(
         self, decoder, fused: FusedCode, taken: Sequence[int], view_of: ViewOf
     ) -> tuple[FusedCode, str | None]:
@@ -59,15 +64,3 @@ class RefinedPosterior:
         """The mean after one more view, refined from the current belief as the prior (the recursive update the
         loop's full refinement approximates): what the diagnostics call the realised effect of a view."""
         return refine(decoder, belief.mu, belief.var, [view], self.settings).mu
-
-
-OBSERVERS = ("none", *MODES)
-
-
-def build_observer(name: str, **options) -> FusedGaussian | RefinedPosterior:
-    """An observer by name (none, masks, depth); options go to RefinedPosterior (size, iterations, the stds)."""
-    if name == FusedGaussian.name:
-        return FusedGaussian()
-    if name not in OBSERVERS:
-        raise ValueError(f"unknown observe {name!r}; choose one of {list(OBSERVERS)}")
-    return RefinedPosterior(name, **options)

@@ -16,12 +16,10 @@ from typing import Sequence
 import numpy as np
 
 from ushape.planning.candidates import SOURCES, candidate_views
-from ushape.planning.information import INFORMATION_STRATEGIES, SeenInformationGain
 from ushape.planning.loop import active_reconstruction
-from ushape.planning.observers import OBSERVERS, FusedGaussian, build_observer
-from ushape.planning.strategies import ORACLES, STRATEGIES, build_strategy
+from ushape.planning.observers import FusedGaussian
+from ushape.planning.plugins import SequenceContext, build_observer, build_strategy, observer_names, strategy_names
 from ushape.reconstruction.calibrated_fusion import refinement_prior
-from ushape.reconstruction.refine_calibration import seen_model
 
 log = logging.getLogger(__name__)
 
@@ -33,7 +31,8 @@ class ActivePlan:
     refine_size / refine_iterations: rays per image side and Levenberg-Marquardt steps of that refinement
     (and the information strategies' rays); scales: crops of area [scale, 1]; shapes: the first test shapes
     only (None: all); candidates: orbit (renders of the true shape), recorded (the world's views) or auto;
-    azimuths x elevations: the orbit's candidates."""
+    azimuths x elevations: the orbit's candidates; strategy_dirs / observer_dirs: more folders of strategy /
+    observer YAML files (conf/strategy/ and conf/observer/ are always searched; see planning.plugins)."""
 
     views: int = 6
     strategies: Sequence[str] = ("uncertainty", "unseen-uncertainty", "farthest", "random", "oracle", "information")
@@ -45,10 +44,13 @@ class ActivePlan:
     candidates: str = "auto"
     azimuths: int = 12
     elevations: int = 2
+    strategy_dirs: Sequence[str] = ()
+    observer_dirs: Sequence[str] = ()
 
     def __post_init__(self) -> None:
         self.strategies, self.observe, self.scales = list(self.strategies), list(self.observe), list(self.scales)
-        known = [*STRATEGIES, *ORACLES]
+        self.strategy_dirs, self.observer_dirs = list(self.strategy_dirs), list(self.observer_dirs)
+        known = strategy_names(self.strategy_dirs)
         unknown = [s for s in self.strategies if s not in known]
         if unknown or self.views < 1 or self.candidates not in SOURCES:
             raise ValueError(
@@ -57,8 +59,9 @@ class ActivePlan:
             )
         if not all(0 < float(s) <= 1 for s in self.scales):
             raise ValueError(f"active: scales are crop min scales in (0, 1], got {self.scales}")
-        if not set(self.observe) <= set(OBSERVERS) or not self.observe:
-            raise ValueError(f"active: observe must be some of {list(OBSERVERS)}, got {self.observe}")
+        observers = observer_names(self.observer_dirs)
+        if not set(self.observe) <= set(observers) or not self.observe:
+            raise ValueError(f"active: observe must be some of {observers}, got {self.observe}")
         if self.refine_size < 1 or self.refine_iterations < 1:
             raise ValueError(
                 "active: refine_size (rays per image side) and refine_iterations must be >= 1, got "
@@ -83,15 +86,16 @@ def shape_candidates(world, shape_id: str, plan: ActivePlan):
 
 def observer_for(plan: ActivePlan, name: str):
     """The observer `name` with the plan's refinement settings."""
-    return build_observer(name, size=plan.refine_size, iterations=plan.refine_iterations)
+    context = SequenceContext(size=plan.refine_size, iterations=plan.refine_iterations)
+    return build_observer(name, context, plan.observer_dirs)
 
 
 def run_strategy(
     predictor, plan: ActivePlan, seed: int, resolution: int, candidates, encode, name, observer, true_code
 ):
     """One strategy's steps on one shape (from the shared start view), under one observer."""
-    options = strategy_options(name, plan.refine_size, predictor, observer)
-    strategy = build_strategy(name, seed, true_code if name in ORACLES else None, **options)
+    context = SequenceContext(seed, true_code, observer, predictor, plan.refine_size, plan.refine_iterations)
+    strategy = build_strategy(name, context, plan.strategy_dirs)
     return active_reconstruction(
         candidates,
         encode,
@@ -113,20 +117,6 @@ def loop_fusion(predictor, observer):
     if getattr(observer, "name", FusedGaussian.name) == FusedGaussian.name:
         return None
     return refinement_prior(predictor)
-
-
-def strategy_options(name: str, size: int, predictor, observer) -> dict:
-    """The information strategies' rays per side (`size`); information-seen's floors, the predictor's run's seen
-    model fitted for what the loop observes (masks where it observes nothing); an oracle's observer (it scores the
-    belief the loop would hold: the fused code, or its refinement)."""
-    if name in ORACLES:
-        return {"observer": observer}
-    if name not in INFORMATION_STRATEGIES:
-        return {}
-    options = {"size": size}
-    if name == SeenInformationGain.name:
-        options["floors"] = seen_model(predictor.checkpoint, getattr(observer, "name", FusedGaussian.name))
-    return options
 
 
 def observable(names: Sequence[str], candidates) -> list[str]:

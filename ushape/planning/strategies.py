@@ -17,6 +17,8 @@
   strategy a robot could run: the greedy choice by the latent distance.
 - oracle-occupancy: the same, by the shape: the belief's occupancy against the own code's at fixed points
   (1 - IoU). What a greedy choice of views can give where the score is the shape, not the code.
+
+Each is named by its file conf/strategy/<name>.yaml (see planning.plugins), which builds its class.
 """
 
 from __future__ import annotations
@@ -32,12 +34,6 @@ from ushape.decoder.query import code_sdf_fn
 from ushape.fusion.rules import FusedCode
 from ushape.metrics.reconstruction import EmptyOccupancyError, iou_from_occupancy, sdf_inside_fn
 from ushape.planning.criteria import angular_gap, uncertain_surface, unseen_uncertain_surface
-from ushape.planning.information import (
-    INFORMATION_STRATEGIES,
-    InformationGain,
-    SeenInformationGain,
-    SurfaceInformationGain,
-)
 from ushape.planning.loop import Encode, Fusion, PlanState
 
 Belief = Callable[[FusedCode, list[int]], FusedCode]  # (the fused Gaussian of views, those views) -> the belief
@@ -55,6 +51,10 @@ class RandomView:
 
     def __init__(self, seed: int = 0) -> None:
         self.seed = seed
+
+    @classmethod
+    def for_sequence(cls, context, **settings):
+        return cls(**{"seed": context.seed, **settings})
 
     def scores(self, state: PlanState) -> np.ndarray:
         key = [self.seed, zlib.crc32(state.candidates.shape_id.encode()), len(state.taken)]
@@ -124,9 +124,16 @@ class LatentOracle:
     itself (none), or its refinement on those views, which costs one refinement per open candidate."""
 
     name = "oracle"
+    oracle = True  # it looks at the answer
 
     def __init__(self, true_code: Tensor, observer=None) -> None:
         self.true_code, self.observer = true_code.float(), observer
+
+    @classmethod
+    def for_sequence(cls, context, **settings):
+        if context.true_code is None:
+            raise ValueError(f"the {cls.name} strategy needs the shape's own code (it scores against the answer)")
+        return cls(context.true_code, **{"observer": context.observer, **settings})
 
     def distance(self, state: PlanState) -> Callable[[FusedCode], float]:
         return code_distance(self.true_code)
@@ -174,33 +181,3 @@ class OccupancyOracle(LatentOracle):
 
         reference = occupancy(self.true_code)
         return lambda belief: 1.0 - occupancy_iou(occupancy(belief.mu), reference)
-
-
-STRATEGIES = {
-    s.name: s
-    for s in (
-        UncertainSurface,
-        UnseenUncertainSurface,
-        FarthestView,
-        RandomView,
-        InformationGain,
-        SurfaceInformationGain,
-        SeenInformationGain,
-    )
-}  # what a robot can run; an oracle needs the answer
-ORACLES = {s.name: s for s in (LatentOracle, OccupancyOracle)}
-
-
-def build_strategy(name: str, seed: int = 0, true_code: Tensor | None = None, **options):
-    """A strategy by name (one of STRATEGIES, or one of ORACLES given the shape's own code); options go to the
-    information strategies (their rays per side `size`, the residuals' stds) or to an oracle (the loop's
-    `observer`, if any)."""
-    if name in ORACLES:
-        if true_code is None:
-            raise ValueError(f"the {name} strategy needs the shape's own code (it scores against the answer)")
-        return ORACLES[name](true_code, **options)
-    if name not in STRATEGIES:
-        raise ValueError(f"unknown strategy {name!r}; choose one of {[*STRATEGIES, *ORACLES]}")
-    if name in INFORMATION_STRATEGIES:
-        return STRATEGIES[name](**options)
-    return RandomView(seed) if name == RandomView.name else STRATEGIES[name]()
