@@ -1,4 +1,4 @@
-"""The names of what a run leaves on disk, in one place (as DeepSDF's workspace.py keeps them).
+"""The names of what ushape leaves on disk, in one place (as DeepSDF's workspace.py keeps them).
 
 outputs/runs/<date>/<time>_<stage>_<category>[_<loss>]/    one `python train.py` run
     run.json                 the finished run's record (stage, world, decoder, checkpoint, seconds)
@@ -6,7 +6,19 @@ outputs/runs/<date>/<time>_<stage>_<category>[_<loss>]/    one `python train.py`
     checkpoints/best.ckpt    stage 2: the best validation epoch
     checkpoints/last.ckpt    the newest epoch, rewritten every epoch (what a resume starts from)
     temperature.json         stage 2: the variance temperature fitted on val (reconstruct.py --fit-temperature)
+    refinement_calibration.json   the refinement's calibration (reconstruct.py --fit-refinement)
+    meshes/scores.json       the training demo's reconstructions and their scores
 outputs/multirun/<sweep>/<job>/                           the same, one folder per sweep job
+outputs/decoders/<category>-<hash>/                       one stage-1 decoder
+    decoder.pt, codes_<split>.pt, DONE, report.json, basis.pt
+outputs/data/<kind>/<category>-<hash>/                    one data world
+    config.json, renders/<shape>/views.npz, skipped.json (real worlds: models left out, and why)
+<run>/eval/<time>/                                        one `python eval.py`
+    results.json, eval_row.json, tables.md, report.html
+<reconstruct --out>/                                      one `python reconstruct.py` (and `active.py`)
+    summary.json, report.html, .reconstruct.lock
+ushape/pretrained/<name>/                                 one shipped model
+    model.json, encoder.ckpt, decoder/, MODEL_CARD.md, splits.json
 """
 
 from __future__ import annotations
@@ -26,6 +38,33 @@ BEST_NAME = "best"
 LAST_FILE = "last.ckpt"
 BEST_FILE = f"{BEST_NAME}.ckpt"
 TEMPERATURE_FILE = "temperature.json"
+CALIBRATION_FILE = "refinement_calibration.json"
+SCORES_FILE = "scores.json"
+
+# A stage-1 decoder's folder.
+DECODER_FILE = "decoder.pt"
+DONE_FILE = "DONE"
+DECODER_REPORT_FILE = "report.json"
+BASIS_FILE = "basis.pt"
+
+# A data world's folder.
+CONFIG_FILE = "config.json"
+VIEWS_FILE = "views.npz"
+SKIPPED_FILE = "skipped.json"
+
+# An evaluation's folder.
+RESULTS = "results.json"
+RESULT_ROW = "eval_row.json"
+TABLES_FILE = "tables.md"  # every table of an evaluation, in Markdown
+
+# A reconstruction's folder (and an evaluation's page).
+SUMMARY_FILE = "summary.json"
+REPORT_FILE = "report.html"
+LOCK_FILE = ".reconstruct.lock"
+
+# A shipped model's folder.
+MODEL_FILE, ENCODER_FILE, DECODER_DIR, CARD_FILE = "model.json", "encoder.ckpt", "decoder", "MODEL_CARD.md"
+SPLITS_FILE = "splits.json"  # the exact shape ids of the model's train, val and test splits
 
 
 def relocated(recorded: str | Path, run_dir: Path | None) -> Path:

@@ -43,6 +43,7 @@ from ushape.planning.sequence import loop_fusion, start_view
 from ushape.reconstruction.export import DEFAULT_CMAP, colour_range, coloured_mesh, write_colour_bar, write_mesh_files
 from ushape.reconstruction.pretrained import PREFIX, open_model
 from ushape.reconstruction.report_page import Scene, write_report
+from ushape.workspace import SUMMARY_FILE
 
 DEFAULT_OUT = Path("outputs") / "active"
 
@@ -162,7 +163,7 @@ def run_active(args: argparse.Namespace) -> dict:
         "out": str(out),
         "report": str(report),
     }
-    atomic.write_json(out / "summary.json", summary)
+    atomic.write_json(out / SUMMARY_FILE, summary)
     return summary
 
 

@@ -20,14 +20,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-CONFIG_FILE = "config.json"
+from ushape.workspace import CONFIG_FILE, VIEWS_FILE
+
 SPLITS_DIR = "splits"
 MESHES_DIR = "meshes"
 SDF_DIR = "sdf"
 RENDERS_DIR = "renders"
 SHAPES_DIR = "shapes"
 METADATA_FILE = "rendering_metadata.txt"
-VIEWS_FILE = "views.npz"
+
 SPLITS = ("train", "val", "test")
 REQUIRED_CONFIG_KEYS = ("category", "n_views", "image_size")
 

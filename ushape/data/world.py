@@ -27,6 +27,7 @@ from ushape.data.jobs import run_jobs
 from ushape.data.layout import SPLITS, WorldIndex, world_dir_name
 from ushape.data.shape_artifacts import ShapeFactory, ShapeJob, ShapeResult, artifact_problems, build_shape
 from ushape.errors import InputError
+from ushape.workspace import CONFIG_FILE
 
 log = logging.getLogger(__name__)
 
@@ -184,7 +185,7 @@ class SyntheticWorld:
         return world if world.config == config and world.directory.resolve() == index.root.resolve() else None
 
     def _write_config(self) -> None:
-        path = self.directory / "config.json"
+        path = self.directory / CONFIG_FILE
         problem = integrity.check_json(path)
         if problem is None and json.loads(path.read_text()) == self.config:
             return

@@ -23,11 +23,9 @@ from omegaconf import OmegaConf
 from torch import Tensor, nn
 
 from ushape import atomic
+from ushape.workspace import DECODER_FILE, DONE_FILE
 
 log = logging.getLogger(__name__)
-
-DECODER_FILE = "decoder.pt"
-DONE_FILE = "DONE"
 
 
 def codes_file(split: str) -> str:

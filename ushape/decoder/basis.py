@@ -34,9 +34,9 @@ from ushape.decoder.artifacts import (
     save_decoder,
 )
 from ushape.decoder.network import DeepSDFDecoder
+from ushape.workspace import BASIS_FILE
 
 BASES = ("identity", "pca")
-BASIS_FILE = "basis.pt"
 
 
 def pca_basis(codes: Tensor) -> tuple[Tensor, Tensor, Tensor]:  # [S, D] -> mean [D], R [D, D], variance [D]

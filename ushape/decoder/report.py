@@ -34,9 +34,9 @@ from ushape.metrics.reconstruction import (
     occupancy_grid,
     sdf_inside_fn,
 )
+from ushape.workspace import DECODER_REPORT_FILE as REPORT_FILE
 
 log = logging.getLogger(__name__)
-REPORT_FILE = "report.json"
 
 
 def score_split(decoder, world_root: Path, decoder_dir: Path, split: str, n_shapes: int, resolution: int) -> dict:

@@ -21,7 +21,7 @@ import yaml
 from ushape import atomic
 from ushape.errors import MissingInputError
 from ushape.evaluation.report import rows_to_csv
-from ushape.evaluation.settings import RESULT_ROW
+from ushape.workspace import RESULT_ROW
 
 GATHERED = "gathered"
 # Overrides that name folders, not settings: left out of the table's `overrides` column.

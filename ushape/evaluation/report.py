@@ -24,7 +24,7 @@ from typing import Any, Sequence
 from ushape import atomic
 from ushape.evaluation import plots, tables
 from ushape.evaluation.plugin import protocols_of
-from ushape.evaluation.settings import RESULT_ROW, RESULTS
+from ushape.workspace import RESULT_ROW, RESULTS
 
 PLOTS_DIR = "plots"
 

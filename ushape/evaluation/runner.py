@@ -28,9 +28,10 @@ from ushape.evaluation.context import EvalContext
 from ushape.evaluation.encoders import EncoderRun, load_encoder, mask_variants
 from ushape.evaluation.methods import ReconstructionMethod, fallback_lines, method_variants
 from ushape.evaluation.plugin import Protocol
-from ushape.evaluation.settings import RESULTS, Settings
+from ushape.evaluation.settings import Settings
 from ushape.evaluation.showcase import Showcase, save_showcase
 from ushape.evaluation.views import encode_views
+from ushape.workspace import RESULTS
 
 log = logging.getLogger(__name__)
 

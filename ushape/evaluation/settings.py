@@ -1,6 +1,6 @@
 """What every evaluation protocol shares: the split, the views, how finely shapes are meshed and scored,
 the decoder's precision, the seed, the shape cap and the calibration levels (conf/protocol/paper.yaml's
-`protocol` node, sized by the presets paper and quick), and the names of the files an evaluation writes.
+`protocol` node, sized by the presets paper and quick); the files an evaluation writes are named in workspace.py.
 
 Each protocol's own settings sit in its YAML file (conf/protocol/plugins/<name>.yaml) and in its class
 (evaluation.plugin); results.json records both.
@@ -15,8 +15,6 @@ from ushape.evaluation.protocols import GROUP_SIZE
 
 # What `protocols=auto` runs (the others are asked for by name: protocols=[active], ...).
 PAPER_PROTOCOLS = ("single_view", "multi_view", "corrupted", "uncertainty", "locality", "depth")
-RESULT_ROW = "eval_row.json"
-RESULTS = "results.json"
 
 
 @dataclass

@@ -11,6 +11,7 @@ from typing import Any, Sequence
 
 from ushape import atomic
 from ushape.evaluation.protocols import SINGLE_VIEW
+from ushape.workspace import TABLES_FILE
 
 ENCODER_ORDER = ("l2", "nll", "es")
 TABLE4_SCALES = (1.0, 0.8, 0.4, 0.2, 0.1)
@@ -20,8 +21,6 @@ NLL_NOTE = (
     "the D dimensions; SDF per value. ES: multivariate Monte Carlo in latent space, closed-form univariate "
     "in SDF space. SDF values clamped to the decoder's training clamp; variance floored at 1e-6."
 )
-
-TABLES_FILE = "tables.md"  # every table of an evaluation, in Markdown
 
 
 @dataclass

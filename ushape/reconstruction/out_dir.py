@@ -12,9 +12,8 @@ from typing import Iterator
 from filelock import FileLock, Timeout
 
 from ushape.errors import InputError
+from ushape.workspace import LOCK_FILE, REPORT_FILE, SUMMARY_FILE
 
-LOCK_FILE = ".reconstruct.lock"
-SUMMARY_FILE = "summary.json"
 # What a reconstruction writes (pipeline, export, view_depth): removed before a new run writes its own.
 OUTPUT_PATTERNS = (
     SUMMARY_FILE,
@@ -24,7 +23,7 @@ OUTPUT_PATTERNS = (
     "overview.png",
     "depth_*.npz",
     "depth_*.png",
-    "report.html",
+    REPORT_FILE,
     "model-viewer-umd.min.js",
 )
 

@@ -45,12 +45,12 @@ from ushape.reconstruction.predictor import (
 )
 from ushape.reconstruction.refine_calibration import CALIBRATION_FILE
 from ushape.reconstruction.refined_code import r2n2_frame_of
+from ushape.workspace import CARD_FILE, DECODER_DIR, ENCODER_FILE, MODEL_FILE, SPLITS_FILE
 
 log = logging.getLogger(__name__)
 PRETRAINED_DIR = Path(__file__).resolve().parents[1] / "pretrained"
 PREFIX = "pretrained:"  # `--run pretrained:chairs` is `--model chairs`
-MODEL_FILE, ENCODER_FILE, DECODER_DIR, CARD_FILE = "model.json", "encoder.ckpt", "decoder", "MODEL_CARD.md"
-SPLITS_FILE = "splits.json"  # the exact shape ids of the model's train, val and test splits
+
 # Largest difference allowed between the exported model and its run on the same images: in mu, relative to the
 # largest |mu| (at least 1); in log var, absolute.
 EXPORT_TOLERANCE = 2e-2

@@ -49,8 +49,8 @@ from ushape.reconstruction.visibility import SEEN_TOLERANCE, seen_by_views
 from ushape.refinement import ObservationSettings, RefineSettings, refine
 from ushape.refinement.inputs import input_views
 from ushape.refinement.posterior import prior_precision
+from ushape.workspace import CALIBRATION_FILE
 
-CALIBRATION_FILE = "refinement_calibration.json"
 # How many of a val shape's views the refinement is fitted on at a time (Table V's counts).
 VIEW_COUNTS = (1, 3, 10)
 # Val shapes the fit refines (all where fewer). On 4 the fitted s scattered over 1e-4-0.1 and its test

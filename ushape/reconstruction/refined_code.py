@@ -15,6 +15,7 @@ from ushape.reconstruction.predictor import Predictor
 from ushape.reconstruction.settings import ReconstructionSettings
 from ushape.refinement import ObservedView, refine, refine_settings
 from ushape.refinement.inputs import R2N2Frame, input_views, typical_r2n2_frame
+from ushape.workspace import CONFIG_FILE
 
 log = logging.getLogger(__name__)
 # What summary.json's refinement record keeps of the calibration it applied (reconstruct.py --fit-refinement).
@@ -69,6 +70,6 @@ def r2n2_frame_of(predictor: Predictor) -> R2N2Frame | None:
     """Where R2N2's frame sits in the predictor's model: its own record (a shipped model), else its run's world."""
     if predictor.r2n2_frame is not None:
         return predictor.r2n2_frame
-    if predictor.world is not None and (Path(predictor.world) / "config.json").is_file():
+    if predictor.world is not None and (Path(predictor.world) / CONFIG_FILE).is_file():
         return typical_r2n2_frame(WorldIndex.load(predictor.world))
     return None

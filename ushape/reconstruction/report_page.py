@@ -29,10 +29,11 @@ import trimesh
 from PIL import Image
 
 from ushape import atomic
+from ushape.workspace import REPORT_FILE
 
 VIEWER_DIR = Path(__file__).resolve().parent / "viewer"
 VIEWER_JS = "model-viewer-umd.min.js"
-REPORT_FILE = "report.html"
+
 FRUSTUM_COLOUR = (40, 120, 220, 255)
 FRUSTUM_DEPTH = 0.35  # how far (world units) a camera's frustum reaches towards the object
 THUMBNAIL = 96  # px, the input views' thumbnails

@@ -44,10 +44,11 @@ from ushape.reconstruction.pipeline import reconstruct
 from ushape.reconstruction.predictor import load_predictor
 from ushape.reconstruction.report_page import Scene, write_report
 from ushape.reconstruction.settings import ReconstructionSettings
+from ushape.workspace import SCORES_FILE, SUMMARY_FILE
 
 log = logging.getLogger(__name__)
 EMPTY_NOTE = "empty_surface.txt"
-SCORES_FILE = "scores.json"
+
 OWN_CODE = "own_code"
 FusionRule = Callable[[Tensor, Tensor], FusedCode]  # (mu [V, D], var [V, D]) -> fused Gaussian
 
@@ -102,18 +103,18 @@ def demo_page(out_dir: Path, world: WorldIndex, shape_id: str, scores: dict[str,
     """out_dir/report.html: the first demo shape from one view and from all, fused and refined, on the single
     view's colour scale, with the views' cameras and each mesh's scores; None when no demo has a mesh."""
     folders = sorted(
-        (f for f in out_dir.glob(f"{shape_id}_*view*") if (f / "summary.json").is_file()),
-        key=lambda f: (len(json.loads((f / "summary.json").read_text())["views"]), "refined" in f.name),
+        (f for f in out_dir.glob(f"{shape_id}_*view*") if (f / SUMMARY_FILE).is_file()),
+        key=lambda f: (len(json.loads((f / SUMMARY_FILE).read_text())["views"]), "refined" in f.name),
     )
     if not folders:
         return None
     with np.load(world.views_path(shape_id)) as views:
         Ks, w2cs = views["K"].astype(np.float64), views["world_to_cam"].astype(np.float64)
     side = int(round(2 * Ks[0, 0, 2]))
-    top = float(json.loads((folders[0] / "summary.json").read_text())["files"]["std_max"])
+    top = float(json.loads((folders[0] / SUMMARY_FILE).read_text())["files"]["std_max"])
     scenes = []
     for folder in folders:
-        summary = json.loads((folder / "summary.json").read_text())
+        summary = json.loads((folder / SUMMARY_FILE).read_text())
         n = len(summary["views"])
         mesh = trimesh.load(folder / "mesh.ply", process=False)
         label = f"{n} view{'s' if n > 1 else ''}, " + ("refined" if "refined" in folder.name else "fused")
@@ -143,7 +144,7 @@ def score_demo(
         reference = reference_from_mesh(trimesh.load(world.mesh_path(shape_id), process=False))
         shape_scores = {}
         for folder in sorted(meshes_dir.glob(f"{shape_id}_*view*")):
-            record = folder / "summary.json"
+            record = folder / SUMMARY_FILE
             if record.is_file():
                 summary = json.loads(record.read_text())
                 mesh = trimesh.load(folder / "mesh.ply", process=False)
@@ -182,7 +183,7 @@ def demo_digest(meshes_dir: str | Path) -> list[dict]:
     scores = json.loads(scores_path.read_text()) if scores_path.is_file() else {}
     by_folder = {name: (shape, s) for shape, per in scores.items() for name, s in per.items() if name != OWN_CODE}
     for folder in sorted(p for p in Path(meshes_dir).iterdir() if p.is_dir()):
-        record = folder / "summary.json"
+        record = folder / SUMMARY_FILE
         if not record.is_file():
             rows.append({"name": folder.name, "empty": True})
             continue

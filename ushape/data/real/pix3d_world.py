@@ -31,6 +31,7 @@ from ushape.data.layout import WorldIndex
 from ushape.data.real.mesh_sdf import MeshProcessingError, load_mesh, normalise_mesh, previous_signs, sample_mesh_sdf
 from ushape.data.real.pix3d import Pix3DEntry, Pix3DImages, load_annotations, pix3d_category, view_rgba
 from ushape.errors import InputError
+from ushape.workspace import CONFIG_FILE, SKIPPED_FILE
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +40,6 @@ log = logging.getLogger(__name__)
 # 4: SDF signs by reachability from outside (the official voxels' convention); sdf_signs reports method dependence
 PREPROCESS_VERSION = 4
 MASK_INPUTS = ("gt_mask", "none")  # how evaluation may read the views: with the GT mask, or the photo as is
-SKIPPED_FILE = "skipped.json"
 
 
 class Pix3DWorld:
@@ -133,9 +133,7 @@ class Pix3DWorld:
         if not ids:
             raise InputError(f"no usable Pix3D {self.category} model under {self.root} ({len(skipped)} skipped)")
         views = {m: len(photos[m]) for m in ids}
-        atomic.write_json(
-            root / "config.json", {**self.config, "n_views": max(views.values()), "views_per_shape": views}
-        )
+        atomic.write_json(root / CONFIG_FILE, {**self.config, "n_views": max(views.values()), "views_per_shape": views})
         atomic.write_json(root / SKIPPED_FILE, skipped)
         for split, split_ids in (("train", []), ("val", []), ("test", ids)):
             atomic.write_json(index.split_path(split), split_ids)

@@ -49,11 +49,12 @@ from ushape.data.rendering import render_views
 from ushape.data.sampling import sample_points, split_by_sign
 from ushape.data.shape_artifacts import artifact_problems
 from ushape.errors import InputError, MissingInputError
+from ushape.workspace import CONFIG_FILE, SKIPPED_FILE
 
 log = logging.getLogger(__name__)
 
 PREPROCESS_VERSION = 1
-SKIPPED_FILE = "skipped.json"
+
 SDF_STREAM, VIEWS_STREAM = 1, 2
 MIN_INSIDE_FRACTION = 0.002  # as the mesh worlds: a surface enclosing (almost) nothing teaches no shape
 # Stored values are rounded to multiples of 2^-bits (still float32), which deflate then packs: a voxel
@@ -164,8 +165,8 @@ class R2N2World:
         """Preprocess whatever is missing (idempotent) and return the world's index."""
         start = time.perf_counter()
         root = self.directory
-        if _json_differs(root / "config.json", self.config):
-            atomic.write_json(root / "config.json", self.config)
+        if _json_differs(root / CONFIG_FILE, self.config):
+            atomic.write_json(root / CONFIG_FILE, self.config)
         removed = atomic.remove_temp_files(root)
         if removed:
             log.info("removed %d temporary files of an interrupted build from %s", len(removed), root)

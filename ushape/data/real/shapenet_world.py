@@ -38,6 +38,7 @@ from ushape.data.real.mesh_sdf import MeshProcessingError, load_mesh, normalise_
 from ushape.data.rendering import render_views
 from ushape.data.shape_artifacts import artifact_problems, r2n2_frame
 from ushape.errors import InputError
+from ushape.workspace import CONFIG_FILE, SKIPPED_FILE
 
 log = logging.getLogger(__name__)
 
@@ -45,7 +46,7 @@ log = logging.getLogger(__name__)
 # 3: SDF signs by winding number; shapes/<id>.json records how sure they are (sdf_signs)
 # 4: SDF signs by reachability from outside (the official voxels' convention); sdf_signs reports method dependence
 PREPROCESS_VERSION = 4
-SKIPPED_FILE = "skipped.json"
+
 SDF_STREAM, VIEWS_STREAM = 1, 2
 
 
@@ -131,8 +132,8 @@ class ShapeNetWorld:
         """Preprocess whatever is missing (idempotent) and return the world's index."""
         start = time.perf_counter()
         root = self.directory
-        if _json_differs(root / "config.json", self.config):
-            atomic.write_json(root / "config.json", self.config)
+        if _json_differs(root / CONFIG_FILE, self.config):
+            atomic.write_json(root / CONFIG_FILE, self.config)
         planned = self.planned_splits()
         skipped = _read_skipped(root / SKIPPED_FILE)
         available = set(self.available)
