@@ -88,22 +88,22 @@ class RefineMethod(ReconstructionMethod):
     `refine_information.fit_sdf_recalibration`; None: the run's single-view T_sdf). calibrated: s, T_sdf and
     the floor from each run's own fit instead (`reconstruct.py --fit-refinement MODE`, refinement_calibration.json
     beside its checkpoint). starts: prior draws scored beside the fused mean, the LM starting from the lowest
-    energy (0: from the mean; docs/refinement.md, "Starts")."""
+    energy (0: from the mean; docs/refinement.md, "Starts"). A setting not given is conf/refine.yaml's."""
 
     def __init__(
         self,
         mode: str = "masks",
-        size: int = 32,
-        sigma_mask: float = 0.5,
-        sigma_depth: float = 0.02,
-        iterations: int = 15,
-        information_scale: float = 1.0,
+        size: int | None = None,
+        sigma_mask: float | None = None,
+        sigma_depth: float | None = None,
+        iterations: int | None = None,
+        information_scale: float | None = None,
         sdf_temperature: float | None = None,
         sdf_floor: float | None = None,
         calibrated: bool = False,
         name: str | None = None,
         label: str | None = None,
-        starts: int = 0,
+        starts: int | None = None,
     ) -> None:
         self.settings = refine_settings(mode, size, sigma_mask, sigma_depth, iterations, information_scale, starts)
         self.calibrated = bool(calibrated)

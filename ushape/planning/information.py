@@ -27,6 +27,7 @@ from torch import Tensor
 from ushape.planning.criteria import unseen_uncertain_surface
 from ushape.propagation.linearised import latent_jacobian
 from ushape.propagation.sphere_tracing import sphere_trace
+from ushape.refinement.defaults import with_defaults
 from ushape.refinement.observation import ObservationSettings, code_functions, residuals, view_rays
 from ushape.refinement.posterior import RefineSettings, information_matrix, row_weights
 from ushape.refinement.views import ObservedView
@@ -128,8 +129,16 @@ class InformationGain:
     predicts_rows = True  # scored on the rows a view would add, predicted at the current mean
 
     def __init__(
-        self, mode: str | None = None, size: int = 24, sigma_mask: float = 0.5, sigma_depth: float = 0.02
+        self,
+        mode: str | None = None,
+        size: int | None = None,
+        sigma_mask: float | None = None,
+        sigma_depth: float | None = None,
     ) -> None:
+        size, sigma_mask, sigma_depth = (
+            with_defaults(size=size, sigma_mask=sigma_mask, sigma_depth=sigma_depth)[k]
+            for k in ("size", "sigma_mask", "sigma_depth")
+        )
         if mode is not None and mode not in PREDICTS:
             raise ValueError(f"information mode must be one of {PREDICTS} or None, got {mode!r}")
         if size < 1:

@@ -32,16 +32,17 @@ class FusedGaussian:
 
 
 class RefinedPosterior:
-    """The fused Gaussian refined on the views taken (mode masks or depth), size rays per image side."""
+    """The fused Gaussian refined on the views taken (mode masks or depth), size rays per image side; a setting
+    not given is conf/refine.yaml's."""
 
     def __init__(
         self,
         mode: str = "masks",
-        size: int = 24,
-        iterations: int = 15,
-        sigma_mask: float = 0.5,
-        sigma_depth: float = 0.02,
-        information_scale: float = 1.0,
+        size: int | None = None,
+        iterations: int | None = None,
+        sigma_mask: float | None = None,
+        sigma_depth: float | None = None,
+        information_scale: float | None = None,
     ) -> None:
         if mode not in MODES:
             raise ValueError(f"a refined observer's mode must be one of {MODES}, got {mode!r}")

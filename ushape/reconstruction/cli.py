@@ -46,6 +46,7 @@ from ushape.workspace import CONFIG_DIR
 
 FUSION_CONFIGS = CONFIG_DIR / "fusion"
 DEFAULT_OUT = Path("outputs") / "reconstructions"
+DEFAULTS = ReconstructionSettings()  # every flag's default is the settings' own
 
 
 def fusion_names() -> list[str]:
@@ -105,17 +106,21 @@ def build_parser() -> argparse.ArgumentParser:
         "--fit-temperature fitted it, else bayesian",
     )
     parser.add_argument("--k", type=int, default=None, help="views kept by bayesian_k / shared (default: conf)")
-    parser.add_argument("--uncertainty", default="linearised", choices=METHODS, help="vertex std propagation")
-    parser.add_argument("--samples", type=int, default=10, help="codes for --uncertainty mc")
-    parser.add_argument("--resolution", type=int, default=128, help="marching-cubes grid points per axis")
-    parser.add_argument("--depth-size", type=int, default=64, help="depth-map pixels per side")
+    parser.add_argument("--uncertainty", default=DEFAULTS.uncertainty, choices=METHODS, help="vertex std propagation")
+    parser.add_argument("--samples", type=int, default=DEFAULTS.n_samples, help="codes for --uncertainty mc")
+    parser.add_argument(
+        "--resolution", type=int, default=DEFAULTS.resolution, help="marching-cubes grid points per axis"
+    )
+    parser.add_argument("--depth-size", type=int, default=DEFAULTS.depth_size, help="depth-map pixels per side")
     parser.add_argument(
         "--depth-method",
-        default="implicit",
+        default=DEFAULTS.depth_method,
         choices=DEPTH_METHODS,
         help="depth std: implicit (trace the mean code once, first order) or mc (trace M sampled codes)",
     )
-    parser.add_argument("--depth-codes", type=int, default=10, help="codes M traced per depth map (--depth-method mc)")
+    parser.add_argument(
+        "--depth-codes", type=int, default=DEFAULTS.depth_codes, help="codes M traced per depth map (--depth-method mc)"
+    )
     parser.add_argument(
         "--std-max",
         type=float,
@@ -141,22 +146,24 @@ def build_parser() -> argparse.ArgumentParser:
         help="one mask image per input, white = object (default: each image's alpha): cuts the object out for the "
         "encoder, and is what --refine fits",
     )
-    parser.add_argument("--refine-size", type=int, default=32, help="rays per image side the refinement compares")
+    parser.add_argument(
+        "--refine-size", type=int, default=DEFAULTS.refine_size, help="rays per image side the refinement compares"
+    )
     parser.add_argument(
         "--refine-starts",
         type=int,
-        default=0,
+        default=DEFAULTS.refine_starts,
         help="prior draws scored beside the fused mean, the refinement starting from the lowest energy (0: the mean; "
         "8 found better basins on chairs from 6 depth views, docs/refinement.md)",
     )
-    parser.add_argument("--cmap", default="inferno", help="matplotlib colormap for the std colours")
+    parser.add_argument("--cmap", default=DEFAULTS.cmap, help="matplotlib colormap for the std colours")
     parser.add_argument(
         "--precision",
-        default="auto",
+        default=DEFAULTS.precision,
         choices=PRECISIONS,
         help="decoder precision: auto (bf16 on AMX CPUs and CUDA >= 8.0, else fp32), fp32 or bf16",
     )
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=DEFAULTS.seed)
     parser.add_argument("--out", default=None, help=f"output folder (default {DEFAULT_OUT}/<time>)")
     return parser
 

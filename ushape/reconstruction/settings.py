@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ushape.reconstruction.export import DEFAULT_CMAP
+from ushape.refinement.defaults import REFINE_DEFAULTS
 
 
 @dataclass(frozen=True)
@@ -22,8 +23,10 @@ class ReconstructionSettings:
     cmap: str = DEFAULT_CMAP
     seed: int = 0
     refine: str | None = None  # "masks" | "depth": refine the fused code on the views (ushape.refinement)
-    refine_size: int = 32  # rays per image side the refinement compares
-    refine_starts: int = 0  # prior draws scored beside the fused mean; the LM starts from the lowest energy
+    refine_size: int = REFINE_DEFAULTS["size"]  # rays per image side the refinement compares
+    refine_starts: int = REFINE_DEFAULTS[
+        "starts"
+    ]  # prior draws scored beside the fused mean; the LM starts from the lowest energy
     # The decoder's: fp32, bf16, or auto (bf16 where faster: AMX CPUs, CUDA >= 8.0). Under bf16 the mesh
     # is searched in bf16 and placed by fp32 values; linearised and implicit stds use bf16 passes;
     # Monte Carlo stds stay fp32.

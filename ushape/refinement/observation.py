@@ -41,6 +41,7 @@ from ushape.decoder.folded import fold_code
 from ushape.propagation.depth_implicit import MIN_COSINE, depth_sensitivity
 from ushape.propagation.linearised import sdf_gradients
 from ushape.propagation.sphere_tracing import camera_rays, sphere_trace
+from ushape.refinement.defaults import REFINE_DEFAULTS
 from ushape.refinement.ray_search import PointsSDF, SDFGrid, ray_minimum, sdf_grid
 from ushape.refinement.views import ObservedView
 
@@ -55,7 +56,7 @@ class ObservationSettings:
     coarse: int = 24  # ray samples for the minimum SDF (inside the unit ball) ...
     fine: int = 8  # ... and samples around the coarse argmin
     band: float = 7.0  # rows with |m| / tau past this have p (1 - p) < 1e-3: no Jacobian
-    size: int = 32  # rays per image side (every stride-th pixel)
+    size: int = REFINE_DEFAULTS["size"]  # rays per image side (every stride-th pixel; conf/refine.yaml)
     trace_steps: int = 40
     trace_eps: float = 2e-3
     bound: float = 1.0  # rays are sampled inside the ball of this radius (the trace: inside the cube)

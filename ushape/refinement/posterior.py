@@ -34,6 +34,7 @@ import torch
 from torch import Tensor
 
 from ushape.decoder.query import frozen
+from ushape.refinement.defaults import REFINE_DEFAULTS, with_defaults
 from ushape.refinement.observation import KINDS, ObservationSettings, Residuals, residuals, with_jacobian
 from ushape.refinement.views import ObservedView, ScreenedView, screen_view
 
@@ -44,51 +45,52 @@ MIN_SIZE = 4  # rays per image side: fewer cannot draw an outline
 
 @dataclass(frozen=True)
 class RefineSettings:
-    """What the refinement compares and how hard it trusts it (conf/refine/<mode>.yaml)."""
+    """What the refinement compares and how hard it trusts it (defaults: conf/refine.yaml)."""
 
     mode: str = "masks"  # "masks": silhouettes only; "depth": silhouettes and depth returns
-    sigma_mask: float = 0.5  # occupancy residual's std per ray
-    sigma_depth: float = 0.02  # depth residual's std per ray (unit-sphere frame)
+    sigma_mask: float = REFINE_DEFAULTS["sigma_mask"]  # occupancy residual's std per ray
+    sigma_depth: float = REFINE_DEFAULTS["sigma_depth"]  # depth residual's std per ray (unit-sphere frame)
     huber_depth: float = 0.05  # depth residuals past this are down-weighted
-    iterations: int = 15
+    iterations: int = REFINE_DEFAULTS["iterations"]
     damping: float = 1e-3  # initial lambda
     tolerance: float = 1e-3  # stop when E falls by less than this fraction (1e-4 cost 2-4x the steps, same IoU)
     max_mahalanobis: float = 60.0  # ||z* - mu|| in prior stds past this counts as diverged
     # Silhouette sharpness per LM stage, x observation.tau, e.g. (4, 2, 1). One stage by default: on the
     # trained chairs the LM already ends below the true code's energy (docs/refinement.md), and each stage costs a run.
     tau_schedule: tuple[float, ...] = (1.0,)
-    starts: int = 0  # prior draws scored beside the prior's mean; the LM starts from the lowest energy
+    starts: int = REFINE_DEFAULTS["starts"]  # prior draws scored beside the prior's mean; the LM starts from the lowest
     seed: int = 0  # of those draws
-    information_scale: float = (
-        1.0  # s in the Laplace covariance (Sigma^-1 + s J^T W J)^-1, fitted on val (recalibration)
-    )
+    # s in the Laplace covariance (Sigma^-1 + s J^T W J)^-1, fitted on val (recalibration)
+    information_scale: float = REFINE_DEFAULTS["information_scale"]
     observation: ObservationSettings = field(default_factory=ObservationSettings)
 
 
 def refine_settings(
     mode: str = "masks",
-    size: int = 32,
-    sigma_mask: float = 0.5,
-    sigma_depth: float = 0.02,
-    iterations: int = 15,
-    information_scale: float = 1.0,
-    starts: int = 0,
+    size: int | None = None,
+    sigma_mask: float | None = None,
+    sigma_depth: float | None = None,
+    iterations: int | None = None,
+    information_scale: float | None = None,
+    starts: int | None = None,
 ) -> RefineSettings:
     """RefineSettings from the flat knobs a config or a command line gives (size: rays per image side; starts:
-    prior draws scored beside the prior's mean, the LM starting from the lowest energy)."""
-    if int(starts) != starts or starts < 0:
-        raise ValueError(f"starts (prior draws scored beside the prior's mean) must be an integer >= 0, got {starts!r}")
-    if int(size) != size or size < MIN_SIZE:
-        raise ValueError(f"size (rays compared per image side) must be an integer >= {MIN_SIZE}, got {size!r}")
-    return RefineSettings(
-        mode=mode,
+    prior draws scored beside the prior's mean, the LM starting from the lowest energy); a knob not given
+    (None) is conf/refine.yaml's."""
+    knobs = with_defaults(
+        size=size,
         sigma_mask=sigma_mask,
         sigma_depth=sigma_depth,
         iterations=iterations,
         information_scale=information_scale,
-        starts=int(starts),
-        observation=ObservationSettings(size=int(size)),
+        starts=starts,
     )
+    size, starts = knobs.pop("size"), knobs.pop("starts")
+    if int(starts) != starts or starts < 0:
+        raise ValueError(f"starts (prior draws scored beside the prior's mean) must be an integer >= 0, got {starts!r}")
+    if int(size) != size or size < MIN_SIZE:
+        raise ValueError(f"size (rays compared per image side) must be an integer >= {MIN_SIZE}, got {size!r}")
+    return RefineSettings(mode=mode, starts=int(starts), observation=ObservationSettings(size=int(size)), **knobs)
 
 
 @dataclass
