@@ -20,7 +20,6 @@ build. Every file is written atomically and valid files are kept, so an interrup
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import logging
 import time
@@ -31,18 +30,19 @@ from typing import Any, Iterable, Optional, Sequence
 
 import numpy as np
 import trimesh
-from PIL import Image
 
 from ushape import atomic
-from ushape.data.cameras import format_metadata, metadata_to_cameras, parse_metadata, sample_r2n2_views
+from ushape.data.cameras import metadata_to_cameras, parse_metadata
 from ushape.data.jobs import run_jobs
 from ushape.data.layout import SPLITS, WorldIndex
 from ushape.data.real import r2n2_voxels, shapenet, shapenet_rendering
 from ushape.data.real.mesh_sdf import MeshProcessingError, normalise_mesh
-from ushape.data.real.shapenet_world import (
-    _json_differs,
-    _split_fingerprint,
+from ushape.data.real.world_build import (
     checked_renderings_root,
+    json_differs,
+    split_fingerprint,
+    store_views,
+    view_source,
     write_splits,
 )
 from ushape.data.rendering import render_views
@@ -55,7 +55,7 @@ log = logging.getLogger(__name__)
 
 PREPROCESS_VERSION = 1
 
-SDF_STREAM, VIEWS_STREAM = 1, 2
+SDF_STREAM = 1  # a model's SDF samples' random stream (its views': world_build.VIEWS_STREAM)
 MIN_INSIDE_FRACTION = 0.002  # as the mesh worlds: a surface enclosing (almost) nothing teaches no shape
 # Stored values are rounded to multiples of 2^-bits (still float32), which deflate then packs: a voxel
 # is ~0.045 wide in DeepSDF's frame, so 2^-12 (2.4e-4) for sample positions, 2^-14 for their SDF and
@@ -122,7 +122,7 @@ class R2N2World:
             "synset": self.synset,
             "voxels_root": str(self.voxels_root),
             "renderings_root": self.renderings_root,
-            "split": _split_fingerprint(split_file),
+            "split": split_fingerprint(split_file),
             "split_fractions": [float(f) for f in split_fractions],
             "caps": {k: None if v is None else int(v) for k, v in caps.items()},
             "samples_per_shape": int(samples_per_shape),
@@ -165,7 +165,7 @@ class R2N2World:
         """Preprocess whatever is missing (idempotent) and return the world's index."""
         start = time.perf_counter()
         root = self.directory
-        if _json_differs(root / CONFIG_FILE, self.config):
+        if json_differs(root / CONFIG_FILE, self.config):
             atomic.write_json(root / CONFIG_FILE, self.config)
         removed = atomic.remove_temp_files(root)
         if removed:
@@ -294,41 +294,19 @@ def process_voxel_model(job: VoxelJob) -> tuple[str, Optional[str]]:
 def write_voxel_views(job: VoxelJob, mesh: trimesh.Trimesh, r2n2_centre: np.ndarray, r2n2_scale: float) -> str:
     """PNGs, rendering_metadata.txt and views.npz of one model; returns whose images they are."""
     index, n_views, size = job.index, int(job.index.config["n_views"]), int(job.index.config["image_size"])
-    if job.renderings_root:
-        rows = shapenet_rendering.read_metadata(job.renderings_root, job.synset, job.model_id)[:n_views]
-        if len(rows) < n_views:
-            raise FileNotFoundError(f"{job.model_id}: rendering metadata lists {len(rows)} views, need {n_views}")
-        paths = shapenet_rendering.image_paths(job.renderings_root, job.synset, job.model_id, n_views)
-        rgba = np.stack([shapenet_rendering.load_rgba(p, size) for p in paths])
-        text = format_metadata(rows)
-    else:
-        rng = np.random.default_rng(np.random.SeedSequence(job.seed, spawn_key=(VIEWS_STREAM,)))
-        text, rgba = format_metadata(sample_r2n2_views(n_views, rng)), None
+    text, rgba = view_source(job.renderings_root, job.synset, job.model_id, job.seed, n_views, size)
     Ks, world_to_cams = metadata_to_cameras(
         parse_metadata(text), size, r2n2_centre=r2n2_centre, r2n2_scale=r2n2_scale, frame="v1"
     )
     ours = render_views(mesh, Ks, world_to_cams, size)
-    extra = {}
-    if rgba is None:
-        rgba, masks = ours["rgba"], ours["mask"]
-    else:
-        masks = shapenet_rendering.alpha_mask(rgba)
-        extra["r2n2_mask_iou"] = np.float32(shapenet_rendering.render_agreement(masks, ours["mask"]))
-    for view in range(n_views):
-        buffer = io.BytesIO()
-        Image.fromarray(rgba[view], mode="RGBA").save(buffer, format="PNG")
-        atomic.write_bytes(index.image_path(job.model_id, view), buffer.getvalue())
-    atomic.write_text(index.metadata_path(job.model_id), text)
-    save_npz_compressed(
-        index.views_path(job.model_id),
-        K=Ks.astype(np.float32),
-        world_to_cam=world_to_cams.astype(np.float32),
-        masks=masks,
-        depth=quantise(ours["depth"], DEPTH_BITS),
-        r2n2_centre=np.asarray(r2n2_centre, np.float32),
-        r2n2_scale=np.float32(r2n2_scale),
-        **extra,
-    )
+    arrays = {
+        "K": Ks.astype(np.float32),
+        "world_to_cam": world_to_cams.astype(np.float32),
+        "depth": quantise(ours["depth"], DEPTH_BITS),
+        "r2n2_centre": np.asarray(r2n2_centre, np.float32),
+        "r2n2_scale": np.float32(r2n2_scale),
+    }
+    store_views(index, job.model_id, text, rgba, ours, arrays, save_npz=save_npz_compressed)
     return "shapenet_rendering" if job.renderings_root else "ushape"
 
 

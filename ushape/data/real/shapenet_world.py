@@ -16,7 +16,6 @@ interrupted build resumes where it stopped.
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import logging
 import time
@@ -26,15 +25,22 @@ from typing import Any, Iterable, Optional, Sequence
 
 import numpy as np
 import trimesh
-from PIL import Image
 
 from ushape import atomic
-from ushape.data import integrity
-from ushape.data.cameras import format_metadata, parse_metadata, sample_r2n2_views
+from ushape.data.cameras import parse_metadata
 from ushape.data.jobs import run_jobs
 from ushape.data.layout import SPLITS, WorldIndex
 from ushape.data.real import shapenet, shapenet_rendering
 from ushape.data.real.mesh_sdf import MeshProcessingError, load_mesh, normalise_mesh, previous_signs, sample_mesh_sdf
+from ushape.data.real.world_build import (
+    checked_renderings_root,
+    json_differs,
+    read_skipped,
+    split_fingerprint,
+    store_views,
+    view_source,
+    write_splits,
+)
 from ushape.data.rendering import render_views
 from ushape.data.shape_artifacts import artifact_problems, r2n2_frame
 from ushape.errors import InputError
@@ -47,7 +53,7 @@ log = logging.getLogger(__name__)
 # 4: SDF signs by reachability from outside (the official voxels' convention); sdf_signs reports method dependence
 PREPROCESS_VERSION = 4
 
-SDF_STREAM, VIEWS_STREAM = 1, 2
+SDF_STREAM = 1  # a model's SDF samples' random stream (its views': world_build.VIEWS_STREAM)
 
 
 @dataclass(frozen=True)
@@ -102,7 +108,7 @@ class ShapeNetWorld:
             "root": str(self.root),
             "layout": self.layout,
             "renderings_root": self.renderings_root,
-            "split": _split_fingerprint(split_file),
+            "split": split_fingerprint(split_file),
             "split_fractions": [float(f) for f in split_fractions],
             "samples_per_shape": int(samples_per_shape),
             "n_views": int(n_views),
@@ -132,10 +138,10 @@ class ShapeNetWorld:
         """Preprocess whatever is missing (idempotent) and return the world's index."""
         start = time.perf_counter()
         root = self.directory
-        if _json_differs(root / CONFIG_FILE, self.config):
+        if json_differs(root / CONFIG_FILE, self.config):
             atomic.write_json(root / CONFIG_FILE, self.config)
         planned = self.planned_splits()
-        skipped = _read_skipped(root / SKIPPED_FILE)
+        skipped = read_skipped(root / SKIPPED_FILE)
         available = set(self.available)
         for ids in planned.values():
             for mid in ids:
@@ -217,27 +223,14 @@ def process_model(job: ModelJob) -> tuple[str, Optional[str]]:
 def write_model_views(job: ModelJob, mesh: trimesh.Trimesh) -> None:
     """PNGs, rendering_metadata.txt and views.npz of one model: R2N2's images if given, else ours."""
     index, n_views, size = job.index, int(job.index.config["n_views"]), int(job.index.config["image_size"])
-    if job.renderings_root:
-        rows = shapenet_rendering.read_metadata(job.renderings_root, job.synset, job.model_id)[:n_views]
-        if len(rows) < n_views:
-            raise FileNotFoundError(f"{job.model_id}: rendering metadata lists {len(rows)} views, need {n_views}")
-        paths = shapenet_rendering.image_paths(job.renderings_root, job.synset, job.model_id, n_views)
-        rgba = np.stack([shapenet_rendering.load_rgba(p, size) for p in paths])
-        text = format_metadata(rows)
-    else:
-        rng = np.random.default_rng(np.random.SeedSequence(job.seed, spawn_key=(VIEWS_STREAM,)))
-        text, rgba = format_metadata(sample_r2n2_views(n_views, rng)), None
+    text, rgba = view_source(job.renderings_root, job.synset, job.model_id, job.seed, n_views, size)
     centre, scale = r2n2_frame(mesh)
     # R2N2's files store 25 in the fov column, which is not the lens it rendered with; ours store
     # the true one. Either way the protocol's lens is right (see ushape.data.cameras).
     Ks, world_to_cams = shapenet_rendering.model_cameras(parse_metadata(text), mesh, size, job.layout)
     ours = render_views(mesh, Ks, world_to_cams, size)
-    extra = {}
-    if rgba is None:
-        rgba, masks = ours["rgba"], ours["mask"]
-    else:
-        masks = shapenet_rendering.alpha_mask(rgba)
-        iou = shapenet_rendering.render_agreement(masks, ours["mask"])
+
+    def agreement(iou: float) -> None:
         if iou < shapenet_rendering.AGREEMENT_WARNING:
             log.warning(
                 "%s: R2N2 images overlap our renders through their cameras by IoU %.2f only (real "
@@ -247,73 +240,12 @@ def write_model_views(job: ModelJob, mesh: trimesh.Trimesh) -> None:
                 iou,
                 job.layout,
             )
-        extra["r2n2_mask_iou"] = np.float32(iou)
-    for view in range(n_views):
-        buffer = io.BytesIO()
-        Image.fromarray(rgba[view], mode="RGBA").save(buffer, format="PNG")
-        atomic.write_bytes(index.image_path(job.model_id, view), buffer.getvalue())
-    atomic.write_text(index.metadata_path(job.model_id), text)
-    atomic.save_npz(
-        index.views_path(job.model_id),
-        K=Ks.astype(np.float32),
-        world_to_cam=world_to_cams.astype(np.float32),
-        masks=masks,
-        depth=ours["depth"].astype(np.float32),
-        r2n2_centre=centre.astype(np.float32),
-        r2n2_scale=np.float32(scale),
-        **extra,
-    )
 
-
-def _split_fingerprint(source: shapenet.SplitSource) -> Any:
-    """What identifies a split source in the config hash: paths and the SHA-256 of their contents."""
-    if source is None:
-        return None
-    if isinstance(source, dict) or hasattr(source, "items"):
-        return {k: _split_fingerprint(v) for k, v in sorted(source.items())}
-    path = Path(source).expanduser().resolve()
-    files = sorted(path.glob("*.json")) if path.is_dir() else [path]
-    digest = hashlib.sha256(b"".join(f.read_bytes() for f in files if f.is_file())).hexdigest()[:12]
-    return {"path": str(path), "sha256": digest}
-
-
-def checked_renderings_root(renderings_root: str | Path | None, synset: str, n_views: int) -> str | None:
-    """The ShapeNetRendering root as an absolute path (None without one), checked to hold the synset and
-    at least n_views renders per model (it has 24)."""
-    if not renderings_root:
-        return None
-    root = str(Path(renderings_root).expanduser().resolve())
-    shapenet_rendering.check_root(root, synset)
-    if int(n_views) > 24:
-        raise InputError(f"ShapeNetRendering has 24 views per model; n_views={n_views} is too many")
-    return root
-
-
-def write_splits(
-    index: WorldIndex, planned: dict[str, list[str]], skipped: dict[str, str], source: str, layout: str
-) -> None:
-    """skipped.json, and each split's file as planned less the skipped models (rewritten only when it changed);
-    an InputError naming `source` when no training shape is left."""
-    atomic.write_json(index.root / SKIPPED_FILE, skipped)
-    splits = {s: [m for m in planned[s] if m not in skipped] for s in SPLITS}
-    if not splits["train"]:
-        raise InputError(
-            f"no usable training shape in {source}: {len(skipped)} skipped "
-            f"(see {index.root / SKIPPED_FILE}); check the split file and {layout}"
-        )
-    for split in SPLITS:
-        if _json_differs(index.split_path(split), splits[split]):
-            atomic.write_json(index.split_path(split), splits[split])
-
-
-def _json_differs(path: Path, value: Any) -> bool:
-    if integrity.check_json(path) is not None:
-        return True
-    return json.loads(path.read_text()) != value
-
-
-def _read_skipped(path: Path) -> dict[str, str]:
-    if integrity.check_json(path) is not None:
-        return {}
-    data = json.loads(path.read_text())
-    return {str(k): str(v) for k, v in data.items()} if isinstance(data, dict) else {}
+    arrays = {
+        "K": Ks.astype(np.float32),
+        "world_to_cam": world_to_cams.astype(np.float32),
+        "depth": ours["depth"].astype(np.float32),
+        "r2n2_centre": centre.astype(np.float32),
+        "r2n2_scale": np.float32(scale),
+    }
+    store_views(index, job.model_id, text, rgba, ours, arrays, on_agreement=agreement)
