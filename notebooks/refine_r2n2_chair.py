@@ -40,10 +40,9 @@ from ushape.data.real.mesh_sdf import MeshSdf  # noqa: E402
 from ushape.data.real.shapenet_world import ShapeNetWorld  # noqa: E402
 from ushape.data.rendering import RayCaster, render_mesh, render_views  # noqa: E402
 from ushape.decoder.latent_optim import optimise_codes  # noqa: E402
-from ushape.decoder.query import code_sdf_fn, frozen  # noqa: E402
+from ushape.decoder.query import code_sdf_fn  # noqa: E402
 from ushape.encoder.datamodule import view_files  # noqa: E402
 from ushape.errors import MissingInputError  # noqa: E402
-from ushape.mesh.extraction import extract_mesh  # noqa: E402
 from ushape.metrics.pix3d import (  # noqa: E402
     ShapeReference,
     box_frame,
@@ -53,6 +52,7 @@ from ushape.metrics.pix3d import (  # noqa: E402
     voxel_iou,
     voxelise,
 )
+from ushape.propagation.field import code_mesh  # noqa: E402
 from ushape.propagation.linearised import latent_jacobian, latent_variance  # noqa: E402
 from ushape.reconstruction.calibrated_fusion import default_fusion  # noqa: E402
 from ushape.reconstruction.export import coloured_mesh  # noqa: E402
@@ -131,10 +131,8 @@ def references(mesh: trimesh.Trimesh) -> dict[str, ShapeReference]:
 
 
 def mesh_of(decoder, code):
-    with frozen(decoder):
-        sdf = code_sdf_fn(decoder, code)
-        mesh, _ = extract_mesh(sdf, MESH_RESOLUTION)
-    return mesh, sdf
+    mesh, _ = code_mesh(decoder, code, MESH_RESOLUTION, "coarse_to_fine")
+    return mesh, code_sdf_fn(decoder, code)
 
 
 def scores(decoder, code, refs: dict[str, ShapeReference]):

@@ -32,11 +32,11 @@ from ushape.decoder.artifacts import load_codes
 from ushape.decoder.query import code_sdf_fn, frozen
 from ushape.encoder.datamodule import view_files
 from ushape.fusion import BayesianFusion
-from ushape.mesh.extraction import extract_mesh
 from ushape.mesh.visibility import median_ratio
 from ushape.metrics.calibration import calibration_curve, calibration_error
 from ushape.metrics.pix3d import pix3d_metrics, reference_from_mesh
 from ushape.propagation import SDF_CLAMP
+from ushape.propagation.field import code_mesh
 from ushape.propagation.linearised import latent_jacobian, latent_variance
 from ushape.recalibration.refine_information import (
     fit_information_scale,
@@ -55,10 +55,8 @@ VIEWS = {1: [0], 3: [0, 4, 8], 6: [0, 2, 4, 6, 8, 10], 10: list(range(10))}  # v
 
 
 def mesh_of(decoder, code):
-    with frozen(decoder):
-        sdf = code_sdf_fn(decoder, code)
-        mesh, _ = extract_mesh(sdf, 64)
-    return mesh, sdf
+    mesh, _ = code_mesh(decoder, code, 64, "coarse_to_fine")
+    return mesh, code_sdf_fn(decoder, code)
 
 
 def scores(decoder, code, reference):

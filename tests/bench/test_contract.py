@@ -103,7 +103,7 @@ def test_a_deepsdf_decoder_in_bf16_meshes_exactly_as_in_fp32():
     """Folded in bf16 (the point kept float32) and its surface re-evaluated in fp32: the fp32 mesh, its faces
     exactly and its vertices to fp32 rounding (fp32 values move in their last bits with batch and threads)."""
     from ushape.decoder.network import DeepSDFDecoder
-    from ushape.reconstruction.pipeline import mean_mesh
+    from ushape.propagation.field import code_mesh
 
     torch.manual_seed(0)
     decoder = DeepSDFDecoder(latent_size=4, hidden_dims=(64,) * 4, latent_in=(2,), dropout=0.0).eval()
@@ -112,8 +112,8 @@ def test_a_deepsdf_decoder_in_bf16_meshes_exactly_as_in_fp32():
         decoder.layers[-1].bias -= torch.atanh(decode_field(decoder, code, 16).median())
     raw = decode_field(decoder, code, 40, bf16=True)
     assert not torch.equal(raw, decode_field(decoder, code, 40))  # bf16 really changes the values
-    reference, _ = mean_mesh(decoder, code, 40)
-    mesh, stats = mean_mesh(decoder, code, 40, bf16=True)
+    reference, _ = code_mesh(decoder, code, 40, "coarse_to_fine")
+    mesh, stats = code_mesh(decoder, code, 40, "coarse_to_fine", bf16=True)
     assert len(reference.vertices) > 100
     assert np.array_equal(mesh.faces, reference.faces) and same_mesh(mesh, reference)
     assert np.abs(np.asarray(mesh.vertices) - np.asarray(reference.vertices)).max() <= FP32_ROUNDING

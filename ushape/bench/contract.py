@@ -30,9 +30,8 @@ from ushape.mesh.extraction import marching_cubes
 from ushape.metrics.pix3d import PIX3D_VOXELS, box_frame, voxel_iou, voxelise
 from ushape.metrics.reconstruction import EmptyOccupancyError, chamfer_deepsdf, mesh_inside_fn, volumetric_iou
 from ushape.propagation.depth_implicit import depth_uncertainty_implicit_views
-from ushape.propagation.field import surface_field
+from ushape.propagation.field import code_mesh, surface_field
 from ushape.propagation.mesh import vertex_uncertainty
-from ushape.reconstruction.pipeline import mean_mesh
 
 LIMITS = {"chamfer": 1e-5, "iou": 0.995, "vertex_std": 0.02, "depth_std": 0.02, "eval_iou": 0.002}
 EVAL_RESOLUTION = 64  # protocol=paper's mesh grid
@@ -125,8 +124,8 @@ def contract(
     depth_var: Tensor | None = None,  # [D] of the depth maps (default var)
 ) -> Contract:
     """The contract's figures for the reconstruction in bf16 (or fp32: no difference) against fp32."""
-    reference, _ = mean_mesh(decoder, code, resolution)
-    mesh, _ = mean_mesh(decoder, code, resolution, bf16)
+    reference, _ = code_mesh(decoder, code, resolution, "coarse_to_fine")
+    mesh, _ = code_mesh(decoder, code, resolution, "coarse_to_fine", bf16)
     vertices = torch.as_tensor(np.asarray(reference.vertices), dtype=torch.float32)
     std32 = vertex_uncertainty(decoder, code, var, vertices, "linearised")
     std = vertex_uncertainty(decoder, code, var, vertices, "linearised", bf16=bf16)
@@ -164,7 +163,7 @@ def precision_rows(
     """
 
     def run(bf16: bool):
-        mesh, _ = mean_mesh(decoder, code, resolution, bf16)
+        mesh, _ = code_mesh(decoder, code, resolution, "coarse_to_fine", bf16)
         vertices = torch.as_tensor(np.asarray(mesh.vertices), dtype=torch.float32)
         return mesh, vertex_uncertainty(decoder, code, var, vertices, "linearised", bf16=bf16)
 

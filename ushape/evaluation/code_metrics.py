@@ -64,11 +64,6 @@ def grid_inside_fn(grid: Tensor) -> InsideFn:
     return inside
 
 
-def decode_mesh(decoder, code: Tensor, resolution: int, bf16: bool = False) -> trimesh.Trimesh:
-    """Mesh of the decoder's zero level set for one code [D] (marching cubes on the dense grid)."""
-    return marching_cubes(surface_field(decoder, code, resolution, bf16=bf16))
-
-
 class Reconstructor:
     """Meshes and scores codes for one decoder and one world, caching GT references and scores."""
 

@@ -18,12 +18,12 @@ import trimesh
 from ushape import atomic
 from ushape.data.cameras import look_at
 from ushape.data.rendering import on_white, render_mesh
-from ushape.evaluation.code_metrics import decode_mesh
 from ushape.evaluation.protocols import group_views
 from ushape.fusion.rules import fuse_average, fuse_bayesian
 from ushape.mesh.extraction import EmptySurfaceError
 from ushape.mesh.preview import PREVIEW_VIEW
 from ushape.propagation import vertex_uncertainty
+from ushape.propagation.field import code_mesh
 
 SHOWCASE_DIR = "meshes"
 
@@ -79,7 +79,7 @@ def save_showcase(
         fused = fuse(mu, var)
         for kind, (code, code_var) in {"single": (mu[0], var[0]), "fused": (fused.mu, fused.var)}.items():
             try:
-                mesh = decode_mesh(decoder, code, resolution)
+                mesh, _ = code_mesh(decoder, code, resolution)
             except EmptySurfaceError:
                 continue
             vertices = mesh.vertices.astype(np.float32)

@@ -27,11 +27,11 @@ from torch import Tensor
 from ushape.data.augment import corrupted_box, corrupted_view, view_seed
 from ushape.fusion.rules import FusedCode
 from ushape.fusion.strategies import BayesianFusion
-from ushape.mesh.extraction import EmptySurfaceError, marching_cubes
+from ushape.mesh.extraction import EmptySurfaceError
 from ushape.planning.candidates import CandidateViews
 from ushape.planning.criteria import vertex_areas, visible_from
 from ushape.planning.observers import FusedGaussian
-from ushape.propagation.field import decode_field
+from ushape.propagation.field import code_mesh
 from ushape.propagation.linearised import propagate_linearised
 from ushape.refinement.views import ObservedView, crop_view
 
@@ -55,7 +55,7 @@ def surface_of(
 ) -> Surface | None:
     """The Surface of the fused code's mean (None when its SDF has no zero level set in [-1, 1]^3)."""
     try:
-        mesh = marching_cubes(decode_field(decoder, fused.mu, resolution))
+        mesh, _ = code_mesh(decoder, fused.mu, resolution)
     except EmptySurfaceError:
         return None
     vertices = torch.as_tensor(np.asarray(mesh.vertices), dtype=torch.float32)

@@ -19,11 +19,20 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import torch
+import trimesh
 from torch import Tensor
 from torch.nn import functional as F
 
-from ushape.decoder.query import Decoder, check_code_size, check_latent_gaussian, decode_points
-from ushape.mesh.extraction import DEFAULT_CHUNK, coarse_to_fine_grid, exact_surface, surface_cell_corners
+from ushape.decoder.query import Decoder, check_code_size, check_latent_gaussian, code_sdf_fn, decode_points, frozen
+from ushape.mesh.extraction import (
+    DEFAULT_CHUNK,
+    ExtractionStats,
+    coarse_to_fine_grid,
+    exact_surface,
+    extract_mesh,
+    marching_cubes,
+    surface_cell_corners,
+)
 from ushape.propagation.mesh import grid_points, propagate
 
 BAND_METHODS = ("linearised", "mc")
@@ -154,3 +163,35 @@ def surface_field(
         return decode_points(decoder, z, points.to(dtype=points_dtype, device=z.device), chunk)
 
     return exact_surface(grid.float().cpu(), exact, chunk)[0].to(grid)
+
+
+MESH_METHODS = ("dense", "coarse_to_fine")
+
+
+def code_mesh(
+    decoder: Decoder,
+    z: Tensor,  # [D]
+    resolution: int,
+    method: str = "dense",
+    bf16: bool = False,
+    chunk: int = DEFAULT_CHUNK,
+) -> tuple[trimesh.Trimesh, ExtractionStats]:
+    """The mesh of one code's zero level set over [-1, 1]^3 at N^3 grid points, and what it cost: the one way
+    every part of ushape turns a code into a mesh.
+
+    dense: every grid point decoded (`surface_field`; what evaluation and planning use: a decoder trained on
+    SDFs clamped at 0.1 saturates away from the surface, so pruning would evaluate nearly every point anyway);
+    coarse_to_fine: a coarse grid (32^3, or N^3 if smaller) then only the cells near its surface
+    (`extract_mesh`; reconstruct.py's 128^3 meshes). Under bf16 the search runs in bf16 and the vertices are
+    still placed by fp32 values either way. Raises mesh.extraction.EmptySurfaceError without a surface.
+    """
+    if method == "dense":
+        grid = surface_field(decoder, z, resolution, chunk, bf16)
+        return marching_cubes(grid), ExtractionStats(resolution, resolution**3, "dense")
+    if method != "coarse_to_fine":
+        raise ValueError(f"unknown mesh method {method!r}; choose one of {MESH_METHODS}")
+    coarse = min(32, resolution)  # extract_mesh's default coarse grid, capped for small meshes
+    with frozen(decoder):
+        exact = code_sdf_fn(decoder, z) if bf16 else None
+        sdf = code_sdf_fn(decoder, z, bf16)
+        return extract_mesh(sdf, resolution, "coarse_to_fine", chunk, coarse_resolution=coarse, surface_fn=exact)

@@ -18,10 +18,10 @@ from torch import Tensor
 from ushape import atomic
 from ushape.decoder.latent_gaussian import is_full_covariance, latent_trace
 from ushape.decoder.precision import check_precision, resolve_precision
-from ushape.decoder.query import code_sdf_fn, decoder_device, frozen
+from ushape.decoder.query import decoder_device
 from ushape.fusion.rules import FusedCode
-from ushape.mesh.extraction import ExtractionStats, extract_mesh
 from ushape.propagation.depth_implicit import DEPTH_METHODS
+from ushape.propagation.field import code_mesh
 from ushape.propagation.mesh import METHODS
 from ushape.reconstruction.export import coloured_mesh, write_mesh_files
 from ushape.reconstruction.figures import overview_figure
@@ -152,7 +152,7 @@ def write_outputs(
     precision, why = resolve_precision(settings.precision, decoder_device(predictor.decoder))
     bf16 = precision == "bf16"
     with timer("mesh"):
-        mesh, stats = mean_mesh(predictor.decoder, fused.mu, settings.resolution, bf16)
+        mesh, stats = code_mesh(predictor.decoder, fused.mu, settings.resolution, "coarse_to_fine", bf16)
     with timer("vertex_uncertainty"):
         # Monte Carlo stays fp32: its std is the spread of M rounded SDFs, and bf16's rounding floor moved
         # the vertex std of the trained quickstart decoder by 0.4 % at latent var 0.01, 1.0 % at 1e-3 and
@@ -175,7 +175,7 @@ def write_outputs(
     with timer("report"):
         prior = None
         if encoded.refinement is not None and not encoded.refinement.get("fallback"):
-            prior_mesh, _ = mean_mesh(predictor.decoder, encoded.prior.mu, settings.resolution, bf16)
+            prior_mesh, _ = code_mesh(predictor.decoder, encoded.prior.mu, settings.resolution, "coarse_to_fine", bf16)
             prior_std = mesh_std(predictor, fusion, encoded.prior, prior_mesh, settings, generator, None, [], bf16_std)
             prior = (prior_mesh, prior_std)
         known = known_cameras(encoded, cameras, settings.depth_size)
@@ -204,18 +204,6 @@ def write_mesh_outputs(
         shown = coloured_mesh(mesh, std, float(files["std_max"]), settings.cmap)
         overview_figure(images, shown, overview, float(files["std_max"]), settings.cmap, kept)
     return {**files, "overview": str(overview)}
-
-
-def mean_mesh(
-    decoder: torch.nn.Module, mu: Tensor, resolution: int, bf16: bool = False
-) -> tuple[trimesh.Trimesh, ExtractionStats]:
-    """Coarse-to-fine mesh of the code mu [D]; under bf16 its vertices are still placed by fp32 values."""
-    coarse = min(32, resolution)  # extract_mesh's default coarse grid, capped for small meshes
-    with frozen(decoder):
-        exact = code_sdf_fn(decoder, mu) if bf16 else None
-        return extract_mesh(
-            code_sdf_fn(decoder, mu, bf16), resolution, "coarse_to_fine", coarse_resolution=coarse, surface_fn=exact
-        )
 
 
 def summary_record(
