@@ -46,6 +46,7 @@ DECODER_FILE = "decoder.pt"
 DONE_FILE = "DONE"
 DECODER_REPORT_FILE = "report.json"
 BASIS_FILE = "basis.pt"
+IDENTITY_FILE = "identity.json"  # the config the decoder's folder hash was made from
 
 # A data world's folder.
 CONFIG_FILE = "config.json"

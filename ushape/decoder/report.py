@@ -35,6 +35,7 @@ from ushape.metrics.reconstruction import (
     sdf_inside_fn,
 )
 from ushape.workspace import DECODER_REPORT_FILE as REPORT_FILE
+from ushape.workspace import IDENTITY_FILE
 
 log = logging.getLogger(__name__)
 
@@ -70,9 +71,7 @@ def score_split(decoder, world_root: Path, decoder_dir: Path, split: str, n_shap
 
 def report(decoder_dir: str | Path, n_shapes: int = 8, resolution: int = 128, world: str | Path | None = None) -> dict:
     decoder_dir = Path(decoder_dir)
-    identity = (
-        json.loads((decoder_dir / "identity.json").read_text()) if (decoder_dir / "identity.json").exists() else {}
-    )
+    identity = json.loads((decoder_dir / IDENTITY_FILE).read_text()) if (decoder_dir / IDENTITY_FILE).exists() else {}
     world_root = Path(world) if world is not None else _world_root(decoder_dir)
     decoder = load_decoder(decoder_dir)
     started = time.time()

@@ -31,7 +31,7 @@ import torch
 
 from ushape import atomic
 from ushape.data.layout import read_split
-from ushape.decoder.artifacts import DECODER_FILE, codes_file
+from ushape.decoder.artifacts import DECODER_FILE, DONE_FILE, codes_file
 from ushape.errors import InputError, MissingInputError
 from ushape.reconstruction.model_card import model_card
 from ushape.reconstruction.predictor import (
@@ -45,7 +45,7 @@ from ushape.reconstruction.predictor import (
 )
 from ushape.reconstruction.refine_calibration import CALIBRATION_FILE
 from ushape.reconstruction.refined_code import r2n2_frame_of
-from ushape.workspace import CARD_FILE, DECODER_DIR, ENCODER_FILE, MODEL_FILE, SPLITS_FILE
+from ushape.workspace import CARD_FILE, DECODER_DIR, ENCODER_FILE, IDENTITY_FILE, MODEL_FILE, SPLITS_FILE
 
 log = logging.getLogger(__name__)
 PRETRAINED_DIR = Path(__file__).resolve().parents[1] / "pretrained"
@@ -173,8 +173,10 @@ def export_pretrained(run: str | Path, name: str, out_root: str | Path = PRETRAI
     staging = folder.with_name(f".{name}.staging")
     shutil.rmtree(staging, ignore_errors=True)
     (staging / DECODER_DIR).mkdir(parents=True)
-    for stored in (DECODER_FILE, *(codes_file(split) for split in ("train", "val", "test"))):
-        if (decoder_dir / stored).is_file():  # the codes: the decoder's ceiling rows in eval.py, the prior's mean
+    # The decoder, its codes (the ceiling rows in eval.py, the prior's mean) and its stage-1 record (DONE, the
+    # identity its folder hash came from): a complete stage-1 folder, that training can go on from.
+    for stored in (DECODER_FILE, *(codes_file(split) for split in ("train", "val", "test")), DONE_FILE, IDENTITY_FILE):
+        if (decoder_dir / stored).is_file():
             shutil.copy2(decoder_dir / stored, staging / DECODER_DIR / stored)
     hparams.pop("decoder_path", None)
     atomic.torch_save(

@@ -20,6 +20,7 @@ from filelock import FileLock
 from omegaconf import DictConfig, OmegaConf
 
 from ushape.decoder.artifacts import DONE_FILE, folder_problem
+from ushape.workspace import IDENTITY_FILE
 
 log = logging.getLogger(__name__)
 
@@ -128,7 +129,7 @@ def ensure_decoder(
         wait_until_complete(folder)
         return folder
     folder.mkdir(parents=True, exist_ok=True)
-    identity_file = folder / "identity.json"
+    identity_file = folder / IDENTITY_FILE
     with FileLock(str(folder) + ".lock", timeout=lock_timeout_s):
         if is_complete(folder):  # another run finished it while we waited
             log.info("Reusing the stage-1 decoder another run just finished: %s", folder)
