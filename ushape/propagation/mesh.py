@@ -2,15 +2,33 @@
 
 from __future__ import annotations
 
+import importlib
+import inspect
+from typing import Callable
+
 import torch
+from omegaconf import OmegaConf
 from torch import Tensor
 
 from ushape.decoder.query import Decoder
 from ushape.mesh.extraction import grid_points as mesh_grid_points
-from ushape.propagation.linearised import propagate_linearised
 from ushape.propagation.monte_carlo import propagate_mc
+from ushape.workspace import CONFIG_DIR
 
-METHODS = ("mc", "linearised")
+# How a latent Gaussian reaches the SDF: one YAML file a method, conf/propagation/<name>.yaml, whose `_target_`
+# is a function (decoder, mu [D], var [D] or [D, D], points [P, 3], ...) -> (mean [P], variance [P]) taking
+# any of n_samples, generator, chunk and bf16 that it uses.
+PROPAGATION_DIR = CONFIG_DIR / "propagation"
+METHODS = tuple(sorted(path.stem for path in PROPAGATION_DIR.glob("*.yaml")))
+
+
+def propagator(method: str) -> Callable[..., tuple[Tensor, Tensor]]:
+    """The propagation function conf/propagation/<method>.yaml names."""
+    path = PROPAGATION_DIR / f"{method}.yaml"
+    if method not in METHODS:
+        raise ValueError(f"unknown propagation method {method!r}; choose one of {METHODS}")
+    module, _, name = str(OmegaConf.load(path)["_target_"]).rpartition(".")
+    return getattr(importlib.import_module(module), name)
 
 
 def grid_points(resolution: int, dtype: torch.dtype = torch.float32, device: str | torch.device = "cpu") -> Tensor:
@@ -32,14 +50,14 @@ def propagate(
     chunk: int | None = None,
     bf16: bool = False,
 ) -> tuple[Tensor, Tensor]:
-    """SDF mean [P] and variance [P] at points by Monte Carlo ("mc") or first-order ("linearised")."""
-    if method == "mc":
-        kwargs = {} if chunk is None else {"chunk": chunk}
-        return propagate_mc(decoder, mu, var, points, n_samples, generator, bf16=bf16, **kwargs)
-    if method == "linearised":
-        kwargs = {} if chunk is None else {"chunk": chunk}
-        return propagate_linearised(decoder, mu, var, points, bf16=bf16, **kwargs)
-    raise ValueError(f"unknown propagation method {method!r}; choose one of {METHODS}")
+    """SDF mean [P] and variance [P] at points by a method of conf/propagation/: Monte Carlo ("mc"),
+    first order ("linearised"), ...; each is given the options it takes."""
+    function = propagator(method)
+    options = {"n_samples": n_samples, "generator": generator, "bf16": bf16}
+    if chunk is not None:
+        options["chunk"] = chunk
+    taken = inspect.signature(function).parameters
+    return function(decoder, mu, var, points, **{k: v for k, v in options.items() if k in taken})
 
 
 def vertex_uncertainty(
