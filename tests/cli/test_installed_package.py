@@ -56,11 +56,28 @@ def _ushape(installed, *args: str) -> subprocess.CompletedProcess:
     return result
 
 
-def test_the_wheel_carries_the_configs(installed):
+def test_the_wheel_carries_the_configs_and_the_shipped_models(installed):
     site, _ = installed
     configs = {p.relative_to(site / "ushape" / "conf") for p in (site / "ushape" / "conf").rglob("*.yaml")}
     assert configs == {p.relative_to(ROOT / "conf") for p in (ROOT / "conf").rglob("*.yaml")}
     assert not (site / "ushape" / "conf").is_symlink()
+    shipped = {p.relative_to(ROOT / "ushape" / "pretrained") for p in (ROOT / "ushape" / "pretrained").rglob("*.*")}
+    assert shipped and shipped == {
+        p.relative_to(site / "ushape" / "pretrained") for p in (site / "ushape" / "pretrained").rglob("*.*")
+    }
+
+
+RENDER = ROOT.parent / "shared/data/real_sample/ShapeNetRendering/03001627/1a6f615e8b1b5ae4dbbc9440457e303e/rendering"
+
+
+@pytest.mark.slow  # ~20 s: a real R2N2 render through the wheel's own chairs model
+@pytest.mark.skipif(not RENDER.is_dir(), reason="needs ../shared/data/real_sample")
+def test_the_installed_wheel_reconstructs_from_its_shipped_model(installed):
+    _, work = installed
+    result = _ushape(installed, "reconstruct", str(RENDER / "00.png"), "--model", "chairs", "--refine", "masks",
+                     "--resolution", "32", "--out", str(work / "shipped"))  # fmt: skip
+    summary = (work / "shipped" / "summary.json").read_text()
+    assert '"model": "chairs"' in summary and str(installed[0]) in summary, result.stdout[-2000:]
 
 
 @pytest.mark.slow  # 57 s on 2 cores: whole commands end to end; `make test-slow` and CI run it

@@ -226,6 +226,7 @@ def summary_record(
     fused, refinement, var, paths = encoded.prior, encoded.refinement, encoded.var, encoded.paths
     kept = set(fused.kept.tolist())
     summary = {
+        "model": predictor.model_name,  # the shipped model reconstructed with (None: a run's checkpoint)
         "checkpoint": str(predictor.checkpoint),
         "temperature": predictor.temperature,
         "sdf_temperature": sdf_temperature(fusion, predictor, refinement),

@@ -188,6 +188,7 @@ class Predictor:
     # Where R2N2's frame sits in the model's, (r2n2_centre [3], r2n2_scale), for R2N2 renders' cameras; None:
     # the run's world tells (`refinement.inputs.typical_r2n2_frame`), a shipped model's model.json says
     r2n2_frame: tuple | None = None
+    model_name: str | None = None  # the shipped model's name (ushape/pretrained/<name>); None: a trained run
 
     @property
     def decoder(self) -> nn.Module:

@@ -130,6 +130,7 @@ def load_model_folder(folder: Path, temperature: bool = True) -> Predictor:
         mask_mode=str(record.get("mask_mode", "gt_mask")),
         world=None,
         r2n2_frame=frame_from_record(record.get("r2n2_frame")),
+        model_name=str(record.get("name", folder.name)),
     )
 
 
