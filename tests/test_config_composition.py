@@ -11,7 +11,7 @@ CONF = Path(__file__).resolve().parents[1] / "conf"
 # Groups whose options are chosen on the command line (hydra's own group is composed separately; eval.py
 # reads conf/method/ by name, as `methods=[refine_masks, ...]`: a list, not one option of a group; the
 # planning loop reads conf/strategy/ and conf/observer/ by name: tests/planning/test_plugins.py; propagation reads
-# conf/propagation/ by name: tests/propagation/test_methods.py).
+# conf/propagation/ by name: tests/propagation/test_propagation_methods.py).
 NAMED_LISTS = {"method", "strategy", "observer", "propagation"}
 GROUPS = sorted(p.name for p in CONF.iterdir() if p.is_dir() and p.name not in {"hydra", *NAMED_LISTS})
 
