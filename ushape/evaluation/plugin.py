@@ -1,7 +1,7 @@
 """The interface of an evaluation protocol, and where an evaluation finds the protocols it is asked for.
 
 A protocol is a dataclass built from conf/protocol/plugins/<name>.yaml (its `_target_` and its settings,
-with `plugins.<name>.<key>=...` on eval.py's command line, or a size preset, changing one). It owns
+with `++plugins.<name>.<key>=...` on eval.py's command line, or a size preset, changing one). It owns
 everything about itself:
 
 - `run(context)` scores one encoder (see context.EvalContext: the encoder run, its encodings by crop
@@ -27,6 +27,7 @@ from typing import Any, ClassVar, Mapping, Sequence
 from hydra.utils import get_object
 from omegaconf import OmegaConf
 
+from ushape.builders import yaml_files
 from ushape.workspace import CONFIG_DIR
 
 PROTOCOLS_DIR = CONFIG_DIR / "protocol" / "plugins"
@@ -85,10 +86,7 @@ class Protocol:
 
 def available(dirs: Sequence[str | Path] = ()) -> dict[str, Path]:
     """name -> YAML file of every protocol in conf/protocol/plugins/ and in dirs (a later folder wins)."""
-    found = {}
-    for folder in [PROTOCOLS_DIR, *map(Path, dirs)]:
-        found |= {path.stem: path for path in sorted(Path(folder).glob("*.yaml"))}
-    return found
+    return yaml_files(PROTOCOLS_DIR, dirs)
 
 
 def load_protocols(

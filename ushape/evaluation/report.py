@@ -23,7 +23,7 @@ from typing import Any, Sequence
 
 from ushape import atomic
 from ushape.evaluation import plots, tables
-from ushape.evaluation.plugin import protocols_of
+from ushape.evaluation.plugin import Protocol, protocols_of
 from ushape.workspace import RESULT_ROW, RESULTS
 
 PLOTS_DIR = "plots"
@@ -39,15 +39,19 @@ def rows_to_csv(rows: Sequence[dict]) -> str:
     return buffer.getvalue()
 
 
-def build_tables(result: dict[str, Any]) -> list[tables.Table]:
-    """Every table the evaluation's protocols have numbers for, protocol by protocol in the order they ran."""
-    built = [table for protocol in protocols_of(result) for table in protocol.tables(result)]
+def build_tables(result: dict[str, Any], protocols: Sequence[Protocol] | None = None) -> list[tables.Table]:
+    """Every table the evaluation's protocols have numbers for, protocol by protocol in the order they ran
+    (protocols: those of the result, already built; None: built again from it)."""
+    protocols = protocols_of(result) if protocols is None else protocols
+    built = [table for protocol in protocols for table in protocol.tables(result)]
     return [t for t in built if t.rows]
 
 
-def build_figures(result: dict[str, Any]) -> dict[str, Any]:
-    """name -> matplotlib Figure for every plot the evaluation's protocols have data for."""
-    return {name: fig for protocol in protocols_of(result) for name, fig in protocol.figures(result).items()}
+def build_figures(result: dict[str, Any], protocols: Sequence[Protocol] | None = None) -> dict[str, Any]:
+    """name -> matplotlib Figure for every plot the evaluation's protocols have data for (protocols: as
+    build_tables')."""
+    protocols = protocols_of(result) if protocols is None else protocols
+    return {name: fig for protocol in protocols for name, fig in protocol.figures(result).items()}
 
 
 def write_results(result: dict[str, Any], out_dir: str | Path, tensorboard: bool = True) -> dict[str, Path]:
@@ -55,25 +59,28 @@ def write_results(result: dict[str, Any], out_dir: str | Path, tensorboard: bool
     out_dir = Path(out_dir)
     atomic.write_json(out_dir / RESULTS, _finite(result))
     atomic.write_json(out_dir / RESULT_ROW, _finite(result.get("rows", [])))
+    protocols = protocols_of(result)  # built once, for every output below
     csvs = {"records": result["records"], "summary": result["summary"]}
-    for protocol in protocols_of(result):
+    for protocol in protocols:
         csvs.update(protocol.csvs(result))
     for name, rows in csvs.items():
         if rows:
             atomic.write_text(out_dir / f"{name}.csv", rows_to_csv(rows))
-    built = build_tables(result)
+    built = build_tables(result, protocols)
     paths = {"results": out_dir / RESULTS}
     if built:
         paths["tables"] = tables.write_tables(built, out_dir)
-    figures = build_figures(result)
+    figures = build_figures(result, protocols)
     for name, fig in figures.items():
         plots.save_figure(fig, out_dir / PLOTS_DIR / f"{name}.png")
     if tensorboard:
-        paths["tensorboard"] = write_tensorboard(result, built, figures, out_dir / "tensorboard")
+        paths["tensorboard"] = write_tensorboard(result, protocols, built, figures, out_dir / "tensorboard")
     return paths
 
 
-def write_tensorboard(result: dict[str, Any], built: Sequence[tables.Table], figures: dict, log_dir: Path) -> Path:
+def write_tensorboard(
+    result: dict[str, Any], protocols: Sequence[Protocol], built: Sequence[tables.Table], figures: dict, log_dir: Path
+) -> Path:
     """Summary cells and uncertainty rows as scalars, the plots as figures, the tables as text."""
     from torch.utils.tensorboard import SummaryWriter
 
@@ -84,7 +91,7 @@ def write_tensorboard(result: dict[str, Any], built: Sequence[tables.Table], fig
             for metric in ("iou", "cd", "emd"):
                 if metric in row and math.isfinite(row[metric]):
                     writer.add_scalar(f"{tag}/{metric}", row[metric])
-        for protocol in protocols_of(result):
+        for protocol in protocols:
             for tag, value in protocol.scalars(result).items():
                 writer.add_scalar(tag, value)
         for row in result.get("rows", []):
