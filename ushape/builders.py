@@ -6,7 +6,8 @@ conf/optimizer); scripts and tests may also pass plain keyword mappings, which b
 
 from __future__ import annotations
 
-from typing import Any, Callable, Mapping
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
 
 from hydra.utils import get_object, instantiate
 from omegaconf import OmegaConf
@@ -26,6 +27,15 @@ def build(config: Mapping[str, Any] | None, default: Callable[..., Any], **runti
     kwargs = dict(plain(config) or {})
     target = get_object(kwargs.pop("_target_")) if "_target_" in kwargs else default
     return target(**kwargs, **runtime)
+
+
+def yaml_files(folder: str | Path, dirs: Sequence[str | Path] = ()) -> dict[str, Path]:
+    """name -> YAML file of every file in folder and in dirs, by file name (a later folder wins): where a
+    plug-in (a protocol, a strategy, an observer, ...) is found by the name of its file."""
+    found = {}
+    for where in [folder, *map(Path, dirs)]:
+        found |= {path.stem: path for path in sorted(Path(where).glob("*.yaml"))}
+    return found
 
 
 def build_all(configs: Mapping[str, Any] | None) -> list[Any]:

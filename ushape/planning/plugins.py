@@ -24,6 +24,7 @@ from hydra.utils import get_object
 from omegaconf import OmegaConf
 from torch import Tensor
 
+from ushape.builders import yaml_files
 from ushape.workspace import CONFIG_DIR
 
 STRATEGY_DIR = CONFIG_DIR / "strategy"
@@ -42,28 +43,20 @@ class SequenceContext:
     iterations: int = 15  # Levenberg-Marquardt steps at most per refinement
 
 
-def files(folder: Path, dirs: Sequence[str | Path] = ()) -> dict[str, Path]:
-    """name -> YAML file of every entry in folder and in dirs (a later folder wins)."""
-    found = {}
-    for where in [folder, *map(Path, dirs)]:
-        found |= {path.stem: path for path in sorted(Path(where).glob("*.yaml"))}
-    return found
-
-
 def strategy_names(dirs: Sequence[str | Path] = ()) -> list[str]:
     """Every strategy's name (conf/strategy/ and dirs)."""
-    return list(files(STRATEGY_DIR, dirs))
+    return list(yaml_files(STRATEGY_DIR, dirs))
 
 
 def observer_names(dirs: Sequence[str | Path] = ()) -> list[str]:
     """Every observer's name (conf/observer/ and dirs)."""
-    return list(files(OBSERVER_DIR, dirs))
+    return list(yaml_files(OBSERVER_DIR, dirs))
 
 
 def entry_class(kind: str, name: str, dirs: Sequence[str | Path] = ()) -> tuple[type, dict]:
     """(the class, its settings) of strategy or observer `name` (kind: "strategy" or "observer")."""
     folder = {"strategy": STRATEGY_DIR, "observer": OBSERVER_DIR}[kind]
-    found = files(folder, dirs)
+    found = yaml_files(folder, dirs)
     if name not in found:
         raise ValueError(f"unknown {kind} {name!r}; choose one of {sorted(found)} (or add {name}.yaml to a folder)")
     config = OmegaConf.to_container(OmegaConf.load(found[name]), resolve=True)

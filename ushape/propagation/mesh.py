@@ -10,6 +10,7 @@ import torch
 from omegaconf import OmegaConf
 from torch import Tensor
 
+from ushape.builders import yaml_files
 from ushape.decoder.query import Decoder
 from ushape.mesh.extraction import grid_points as mesh_grid_points
 from ushape.propagation.monte_carlo import propagate_mc
@@ -19,7 +20,7 @@ from ushape.workspace import CONFIG_DIR
 # is a function (decoder, mu [D], var [D] or [D, D], points [P, 3], ...) -> (mean [P], variance [P]) taking
 # any of n_samples, generator, chunk and bf16 that it uses.
 PROPAGATION_DIR = CONFIG_DIR / "propagation"
-METHODS = tuple(sorted(path.stem for path in PROPAGATION_DIR.glob("*.yaml")))
+METHODS = tuple(yaml_files(PROPAGATION_DIR))
 
 
 def propagator(method: str) -> Callable[..., tuple[Tensor, Tensor]]:
