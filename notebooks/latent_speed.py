@@ -24,10 +24,9 @@ from ushape.data.sdf_dataset import SDFSamplesDataset
 from ushape.decoder.artifacts import DONE_FILE, load_decoder
 from ushape.decoder.latent_optim import optimise_codes
 from ushape.decoder.query import code_sdf_fn
-from ushape.metrics.voxel_iou import voxel_iou
+from ushape.metrics.voxel_iou import PROTOCOL_LEVEL, numpy_sdf, voxel_iou
 
 SETTINGS = ((200, 2000), (200, 1000), (200, 500), (100, 1000))  # (iterations, samples a step)
-LEVEL = 0.4
 
 
 def main() -> None:
@@ -53,13 +52,9 @@ def main() -> None:
         for shape_id, code in zip(ids, codes):
             record = json.loads(world.shape_path(shape_id).read_text())
             voxels, _ = read_r2n2_voxels(record["source"])
-            sdf = code_sdf_fn(decoder, code)
-
-            def decoded(points: np.ndarray, sdf=sdf) -> np.ndarray:
-                with torch.no_grad():
-                    return sdf(torch.as_tensor(points, dtype=torch.float32)).numpy()
-
-            ious.append(voxel_iou(decoded, voxels, record["voxel_side"], record["centre"], record["scale"], LEVEL))
+            decoded = numpy_sdf(code_sdf_fn(decoder, code))
+            side, centre, scale = record["voxel_side"], record["centre"], record["scale"]
+            ious.append(voxel_iou(decoded, voxels, side, centre, scale, PROTOCOL_LEVEL))
         row = {"iterations": iterations, "samples": per_step, "seconds_a_code": seconds, "iou": float(np.mean(ious))}
         rows.append(row)
         print(f"{iterations} steps x {per_step} samples: {seconds:.2f} s a code, IoU {row['iou']:.3f}")

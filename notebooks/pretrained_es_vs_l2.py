@@ -15,17 +15,15 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from pretrained_measure import LEVEL  # noqa: E402
 from r2n2_ceiling import shape_frame  # noqa: E402
 
 from ushape.data.layout import WorldIndex  # noqa: E402
 from ushape.data.real.r2n2_voxels import read_r2n2_voxels  # noqa: E402
 from ushape.decoder.query import code_sdf_fn  # noqa: E402
 from ushape.encoder.datamodule import view_files  # noqa: E402
-from ushape.metrics.voxel_iou import voxel_iou  # noqa: E402
+from ushape.metrics.voxel_iou import PROTOCOL_LEVEL, numpy_sdf, voxel_iou  # noqa: E402
 from ushape.reconstruction.pretrained import open_model  # noqa: E402
 
 
@@ -50,10 +48,8 @@ def main() -> None:
             mu, _ = predictor.encode(images)
             row[name] = []
             for code in mu:
-                sdf = code_sdf_fn(predictor.decoder, code)
-                with torch.no_grad():
-                    values = lambda p, sdf=sdf: sdf(torch.as_tensor(p, dtype=torch.float32)).numpy()  # noqa: E731
-                    row[name].append(voxel_iou(values, voxels, side, centre, scale, LEVEL))
+                values = numpy_sdf(code_sdf_fn(predictor.decoder, code))
+                row[name].append(voxel_iou(values, voxels, side, centre, scale, PROTOCOL_LEVEL))
             scores[name] += row[name]
         print(json.dumps(row), flush=True)
     es, l2 = np.array(scores["ES"]), np.array(scores["L2"])

@@ -37,7 +37,7 @@ from ushape.encoder.datamodule import view_files  # noqa: E402
 from ushape.mesh.extraction import EmptySurfaceError  # noqa: E402
 from ushape.metrics.calibration import calibration_curve, calibration_error  # noqa: E402
 from ushape.metrics.pix3d import pix3d_metrics, reference_from_mesh  # noqa: E402
-from ushape.metrics.voxel_iou import voxel_iou  # noqa: E402
+from ushape.metrics.voxel_iou import PROTOCOL_LEVEL, numpy_sdf, voxel_iou  # noqa: E402
 from ushape.propagation import SDF_CLAMP  # noqa: E402
 from ushape.propagation.field import code_mesh  # noqa: E402
 from ushape.propagation.linearised import latent_jacobian, latent_variance  # noqa: E402
@@ -46,7 +46,6 @@ from ushape.reconstruction.pretrained import open_model  # noqa: E402
 from ushape.reconstruction.refine_calibration import read_refinement_calibration  # noqa: E402
 from ushape.refinement import refine, refine_settings, world_views  # noqa: E402
 
-LEVEL = 0.4  # voxel widths: where the world's own voxel surface matches R2N2's voxels best (val bound)
 REFINE_SIZE = 32  # reconstruct.py's --refine-size default
 
 
@@ -58,13 +57,8 @@ def spread(n: int, total: int) -> list[int]:
 def scores(decoder, code, voxels, frame, reference) -> dict:
     """IoU against the voxels and Chamfer against the surface of the decoder's shape for `code`."""
     centre, scale, side = frame
-    sdf = code_sdf_fn(decoder, code)
-
-    def values(points: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            return sdf(torch.as_tensor(points, dtype=torch.float32)).numpy()
-
-    out = {"iou": voxel_iou(values, voxels, side, centre, scale, LEVEL)}
+    values = numpy_sdf(code_sdf_fn(decoder, code))
+    out = {"iou": voxel_iou(values, voxels, side, centre, scale, PROTOCOL_LEVEL)}
     try:
         mesh, _ = code_mesh(decoder, code, 64, "coarse_to_fine")
         inside = lambda p: values(np.asarray(p)) < 0  # noqa: E731

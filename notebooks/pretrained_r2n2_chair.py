@@ -19,17 +19,15 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from ushape.data.real import r2n2_voxels
 from ushape.data.real.mesh_sdf import normalise_mesh
 from ushape.decoder.query import code_sdf_fn
-from ushape.metrics.voxel_iou import voxel_iou
+from ushape.metrics.voxel_iou import PROTOCOL_LEVEL, numpy_sdf, voxel_iou
 from ushape.reconstruction.pretrained import PREFIX, open_model
 
 CHAIR = ("03001627", "1a6f615e8b1b5ae4dbbc9440457e303e")
-LEVEL = 0.4
 
 
 def chair_frame(voxel_file: Path):
@@ -41,13 +39,8 @@ def chair_frame(voxel_file: Path):
 
 def iou(decoder, mu, frame) -> float:
     voxels, side, centre, scale = frame
-    sdf = code_sdf_fn(decoder, torch.tensor(mu, dtype=torch.float32))
-
-    def values(points: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            return sdf(torch.as_tensor(points, dtype=torch.float32)).numpy()
-
-    return voxel_iou(values, voxels, side, centre, scale, LEVEL)
+    values = numpy_sdf(code_sdf_fn(decoder, torch.tensor(mu, dtype=torch.float32)))
+    return voxel_iou(values, voxels, side, centre, scale, PROTOCOL_LEVEL)
 
 
 def main() -> None:

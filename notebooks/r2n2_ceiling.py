@@ -20,14 +20,13 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 import trimesh
 
 from ushape.data.layout import WorldIndex
 from ushape.data.real.r2n2_voxels import closed_mesh_sdf, read_r2n2_voxels
 from ushape.decoder.artifacts import DONE_FILE, codes_file, load_codes, load_decoder
 from ushape.decoder.query import code_sdf_fn
-from ushape.metrics.voxel_iou import LEVELS, ious_at_levels
+from ushape.metrics.voxel_iou import LEVELS, ious_at_levels, numpy_sdf
 
 
 def shape_frame(world: WorldIndex, shape_id: str) -> tuple[np.ndarray, float, float, Path]:
@@ -42,12 +41,7 @@ def bound_and_ceiling(world: WorldIndex, decoder, codes, shape_id: str) -> tuple
     voxels, _ = read_r2n2_voxels(source)
     surface = trimesh.load(world.mesh_path(shape_id), process=False)
     bound = ious_at_levels(lambda p: closed_mesh_sdf(surface, p), voxels, side, centre, scale)
-    sdf = code_sdf_fn(decoder, codes.lookup(shape_id))
-
-    def decoded(points: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            return sdf(torch.as_tensor(points, dtype=torch.float32)).numpy()
-
+    decoded = numpy_sdf(code_sdf_fn(decoder, codes.lookup(shape_id)))
     return bound, ious_at_levels(decoded, voxels, side, centre, scale)
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 from typing import Callable, Sequence
 
 import numpy as np
+import torch
 
 from ushape.data.real.r2n2_voxels import voxel_centres
 from ushape.metrics.reconstruction import iou_from_occupancy
@@ -24,6 +25,20 @@ from ushape.metrics.reconstruction import iou_from_occupancy
 SDFFn = Callable[[np.ndarray], np.ndarray]
 # Levels tried for the bound, in voxel widths (0: the voxel centre inside; 0.5: within half a voxel).
 LEVELS = tuple(np.round(np.arange(-0.2, 0.91, 0.1), 2))
+# The level the r2n2 worlds are scored at: where their own voxel surfaces match R2N2's voxels best on val
+# (the bound, chairs and tables alike; docs/pretrained.md).
+PROTOCOL_LEVEL = 0.4
+
+
+def numpy_sdf(sdf: Callable[[torch.Tensor], torch.Tensor]) -> SDFFn:
+    """A torch SDF (points [P, 3] -> [P], e.g. decoder.query.code_sdf_fn) as the numpy function the IoUs here
+    take: float32 points, no autograd."""
+
+    def values(points: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return sdf(torch.as_tensor(np.asarray(points), dtype=torch.float32)).numpy()
+
+    return values
 
 
 def voxel_centres_in_frame(side: float, n: int, centre: Sequence[float], scale: float) -> np.ndarray:
