@@ -24,9 +24,8 @@ class ReconstructionSettings:
     seed: int = 0
     refine: str | None = None  # "masks" | "depth": refine the fused code on the views (ushape.refinement)
     refine_size: int = REFINE_DEFAULTS["size"]  # rays per image side the refinement compares
-    refine_starts: int = REFINE_DEFAULTS[
-        "starts"
-    ]  # prior draws scored beside the fused mean; the LM starts from the lowest energy
+    # prior draws scored beside the fused mean; the LM starts from the lowest energy
+    refine_starts: int = REFINE_DEFAULTS["starts"]
     # The decoder's: fp32, bf16, or auto (bf16 where faster: AMX CPUs, CUDA >= 8.0). Under bf16 the mesh
     # is searched in bf16 and placed by fp32 values; linearised and implicit stds use bf16 passes;
     # Monte Carlo stds stay fp32.

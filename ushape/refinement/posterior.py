@@ -58,7 +58,8 @@ class RefineSettings:
     # Silhouette sharpness per LM stage, x observation.tau, e.g. (4, 2, 1). One stage by default: on the
     # trained chairs the LM already ends below the true code's energy (docs/refinement.md), and each stage costs a run.
     tau_schedule: tuple[float, ...] = (1.0,)
-    starts: int = REFINE_DEFAULTS["starts"]  # prior draws scored beside the prior's mean; the LM starts from the lowest
+    # prior draws scored beside the prior's mean; the LM starts from the lowest energy
+    starts: int = REFINE_DEFAULTS["starts"]
     seed: int = 0  # of those draws
     # s in the Laplace covariance (Sigma^-1 + s J^T W J)^-1, fitted on val (recalibration)
     information_scale: float = REFINE_DEFAULTS["information_scale"]
