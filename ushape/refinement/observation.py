@@ -88,7 +88,11 @@ RowJacobian = Callable[[Tensor, Tensor], Tensor]
 
 class Pending(NamedTuple):
     """Rows of dr/dz not computed yet: their indices [N], the points [N, 3] whose SDF gradients they need, and how
-    those gradients become the rows. Every other row's Jacobian is 0."""
+    those gradients become the rows. Every other row's Jacobian is 0.
+
+    `finish(ds/dtheta [N, K], ds/dx [N, 3])` is the chain rule's last link, linear in its first argument: given
+    the SDF's derivative at the points in any parameters theta (the code: ds/dz; the object's pose:
+    `pose.point_jacobian`), it returns the rows' dr/dtheta [N, K]."""
 
     rows: Tensor
     points: Tensor
@@ -97,12 +101,14 @@ class Pending(NamedTuple):
 
 class Residuals(NamedTuple):
     """Residuals r [R], their Jacobian dr/dz [R, D] ([0, D] until `with_jacobian`), per-row kind [R] (KINDS), and
-    what the Jacobian needs (`pending`): a trial step whose energy does not fall never pays for it."""
+    what the Jacobian needs (`pending`): a trial step whose energy does not fall never pays for it. `view` [R]:
+    the index of each row's view (None where not recorded)."""
 
     r: Tensor
     J: Tensor
     kind: Tensor
     pending: tuple[Pending, ...] = ()
+    view: Tensor | None = None
 
 
 def no_rows() -> tuple[Tensor, Pending]:
@@ -225,7 +231,14 @@ def with_jacobian(decoder: torch.nn.Module, z: Tensor, res: Residuals) -> Residu
             if end > start:
                 J[p.rows] = p.finish(grad_z[start:end], grad_x[start:end])
             start = end
-    return Residuals(res.r, J, res.kind)
+    return Residuals(res.r, J, res.kind, view=res.view)
+
+
+def code_grid(decoder: torch.nn.Module, z: Tensor, settings: ObservationSettings) -> SDFGrid | None:
+    """The SDF grid `residuals` reads for code z [D] (None where settings.grid is 0): for callers that move
+    the cameras, not the code, and can build it once."""
+    sdf, _ = code_functions(decoder, z.detach().float())
+    return settings.search(sdf)
 
 
 def residuals(
@@ -235,18 +248,20 @@ def residuals(
     settings: ObservationSettings,
     use_depth: bool,
     jacobian: bool = True,  # False: r and kind, J [0, D] until `with_jacobian` (a trial step, a candidate code)
+    grid: SDFGrid | None = None,  # the code's SDF grid where the caller has it (`code_grid`), else built here
 ) -> Residuals:
     """Every view's silhouette residuals (and depth and free-space residuals where use_depth), stacked, with dr/dz."""
     sdf, _ = code_functions(decoder, z.detach().float())
-    grid = settings.search(sdf)
+    grid = settings.search(sdf) if grid is None else grid
     terms = [(0, silhouette_residuals)] + ([(1, depth_residuals), (2, free_space_residuals)] if use_depth else [])
-    rs, kinds, pending, offset = [], [], [], 0
-    for view in views:
+    rs, kinds, which, pending, offset = [], [], [], [], 0
+    for index, view in enumerate(views):
         for kind, term in terms:
             r, rows = term(sdf, view, settings, grid)
             rs.append(r)
             kinds.append(torch.full((r.shape[0],), kind))
+            which.append(torch.full((r.shape[0],), index))
             pending.append(rows._replace(rows=rows.rows + offset))
             offset += r.shape[0]
-    res = Residuals(torch.cat(rs), torch.zeros(0, z.shape[0]), torch.cat(kinds), tuple(pending))
+    res = Residuals(torch.cat(rs), torch.zeros(0, z.shape[0]), torch.cat(kinds), tuple(pending), torch.cat(which))
     return with_jacobian(decoder, z, res) if jacobian else res

@@ -1,0 +1,181 @@
+"""Known answers for the pose-and-shape refinement (ushape.refinement.pose, ushape.refinement.joint): the pose
+algebra, its Jacobian against finite differences, a sphere (rotation unobservable), a box with three distinct
+sides (pose recovered, half-turn ambiguity reported) and an asymmetric shape (no ambiguity)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from ushape.data.cameras import look_at
+from ushape.propagation.sphere_tracing import camera_rays
+from ushape.refinement.joint import PoseGroups, PoseSettings, Problem, State, refine_pose_and_shape
+from ushape.refinement.pose import Pose, exp_so3, log_so3, point_jacobian, rotation_angle_deg, scale_observable
+from ushape.refinement.posterior import refine_settings
+from ushape.refinement.ray_search import ray_minimum
+from ushape.refinement.views import ObservedView
+
+FOV = 49.13
+HALF = (0.6, 0.35, 0.2)  # the box's half sides
+# The box's symmetries: identity and the half turns about its axes.
+BOX_FLIPS = [np.eye(3), np.diag([1.0, -1, -1]), np.diag([-1.0, 1, -1]), np.diag([-1.0, -1, 1])]
+
+
+class Ball(nn.Module):
+    """A ball of radius 0.4 e^z0 about `centre`."""
+
+    def __init__(self, centre=(0.0, 0.0, 0.0)) -> None:
+        super().__init__()
+        self.centre = torch.tensor(centre)
+
+    def forward(self, x, z):
+        return (x - self.centre).norm(dim=-1) - 0.4 * torch.exp(z[:, 0])
+
+
+class Box(nn.Module):
+    """A box of half sides HALF e^z (exact SDF)."""
+
+    def forward(self, x, z):
+        q = x.abs() - torch.tensor(HALF) * torch.exp(z[:, :3])
+        return q.clamp_min(0).norm(dim=-1) + q.max(-1).values.clamp(max=0)
+
+
+class BoxAndBall(Box):
+    """The box with a ball on its top back edge: no half-turn symmetry about the vertical."""
+
+    def forward(self, x, z):
+        ball = (x - torch.tensor([0.0, 0.3, -0.25])).norm(dim=-1) - 0.25
+        return torch.minimum(super().forward(x, z), ball)
+
+
+def silhouette(decoder, z, K, w2c, hw) -> torch.Tensor:
+    """The decoder's mask through a camera, by a dense minimum SDF along every pixel ray."""
+    o, d = camera_rays(K, w2c, hw, 1, 1e-3)
+    with torch.no_grad():
+        m, _ = ray_minimum(lambda p: decoder(p, z.expand(p.shape[0], -1)), o, d, 128, 16, 1.0)
+    return (m < 0).float().reshape(hw)
+
+
+def view_of(decoder, z, azimuth, elevation, distance, px) -> ObservedView:
+    K, w2c = look_at(azimuth, elevation, distance, FOV, (px, px))
+    return ObservedView(K=K, world_to_cam=w2c, mask=silhouette(decoder, z, K, w2c, (px, px)))
+
+
+def test_pose_algebra_round_trips():
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        w = rng.normal(size=3)
+        w *= rng.uniform(0.1, 3.0) / np.linalg.norm(w)
+        np.testing.assert_allclose(log_so3(exp_so3(w)), w, atol=1e-9)
+    np.testing.assert_allclose(log_so3(exp_so3(np.array([0.0, math.pi, 0.0]))), [0.0, math.pi, 0.0], atol=1e-6)
+    _, w2c = look_at(30.0, 25.0, 2.0, FOV, 64)
+    pose = Pose.from_world_to_cam(w2c, scale=1.7)
+    np.testing.assert_allclose(pose.object_camera(np.eye(4)), w2c, atol=1e-12)  # a scaled, farther object: same view
+    xi = np.array([0.1, -0.2, 0.05, 0.03, -0.01, 0.02, 0.1])
+    np.testing.assert_allclose(pose.error(pose.perturbed(xi)), xi, atol=1e-9)
+    assert rotation_angle_deg(pose.R, pose.perturbed(xi).R) == pytest.approx(math.degrees(np.linalg.norm(xi[:3])))
+    assert not scale_observable([np.eye(4)])
+    assert scale_observable([np.eye(4), w2c])
+    with pytest.raises(ValueError, match="6 .* or 7"):
+        point_jacobian(torch.zeros(2, 3), torch.zeros(2, 3), dofs=5)
+
+
+def test_joint_jacobian_matches_finite_differences():
+    """dr/d(z, omega, v, sigma) of two views sharing a pose, on a smooth SDF (an off-centre ball)."""
+    decoder, px = Ball((0.3, 0.1, -0.2)), 64
+    K, w2c = look_at(40.0, 25.0, 2.2, FOV, (px, px))
+    mask = torch.zeros(px, px)
+    mask[20:40, 25:45] = 1
+    view = ObservedView(K=K, world_to_cam=w2c, mask=mask)
+    settings = refine_settings("masks", size=32)
+    obs = dataclasses.replace(settings.observation, tau=0.08, grid=0, coarse=512, fine=64)
+    settings = dataclasses.replace(settings, observation=obs)
+    second = look_at(100.0, 25.0, 2.2, FOV, (px, px))[1] @ np.linalg.inv(w2c)
+    groups = PoseGroups.shared([np.eye(4), second])
+    truth = Pose.from_world_to_cam(w2c)
+    problem = Problem(decoder, torch.zeros(1), torch.ones(1), [view, view], groups, settings, PoseSettings(), [truth])
+    state = State(torch.zeros(1, dtype=torch.float64), [truth.perturbed(np.array([0.05, -0.03, 0.02, 0.02, 0.01,
+                                                                                   -0.03, 0.02]))])  # fmt: skip
+    res, _ = problem.residuals(state)
+    J = problem.jacobian(state, res)
+    assert J.shape == (res.r.shape[0], 8)  # 1 code dimension, 7 pose: a baseline makes the scale observable
+    for k in range(8):
+        delta = torch.zeros(8, dtype=torch.float64)
+        delta[k] = 1e-4
+        plus, _ = problem.residuals(problem.step(state, delta))
+        minus, _ = problem.residuals(problem.step(state, -delta))
+        fd = (plus.r.double() - minus.r.double()) / 2e-4
+        # the minimum along each ray is sampled (512 + 64 points): a few percent of sampling noise
+        assert float((fd - J[:, k]).norm() / J[:, k].norm()) < 0.05, k
+
+
+def test_a_sphere_keeps_the_prior_on_rotation_and_recovers_translation_and_radius():
+    """Three views with known motion around a centred ball: the silhouettes say nothing about its rotation, so the
+    posterior's rotation block is the prior's exactly; the baseline gives its position and its size."""
+    decoder, px = Ball(), 64
+    views = [view_of(decoder, torch.zeros(1), az, 20.0, 2.0, px) for az in (0.0, 60.0, 120.0)]
+    first = np.linalg.inv(views[0].world_to_cam)
+    groups = PoseGroups.shared([v.world_to_cam @ first for v in views])
+    pose_settings = PoseSettings(azimuths=2)
+    settings = refine_settings("masks", size=48)
+    post = refine_pose_and_shape(decoder, torch.tensor([0.2]), torch.tensor([0.05]), views, groups, settings,
+                                 pose_settings)  # fmt: skip
+    prior = math.radians(pose_settings.rotation_prior_deg) ** 2
+    np.testing.assert_allclose(torch.diagonal(post.pose_cov[0][:3, :3]).numpy(), [prior] * 3, rtol=1e-4)
+    truth = Pose.from_world_to_cam(views[0].world_to_cam)
+    pose = post.poses[0]
+    assert np.linalg.norm(pose.t - truth.t) < 0.03  # object units, at a distance of 2
+    radius = pose.scale * 0.4 * math.exp(float(post.mu[0]))
+    assert radius == pytest.approx(0.4, rel=0.03)
+    assert post.pose_record(0)["translation_std"][0] < 0.05
+
+
+@pytest.fixture(scope="module")
+def box_views():
+    return [(az, el, d, view_of(Box(), torch.zeros(3), az, el, d, 128)) for az, el, d in
+            [(229.0, 22.0, 1.8), (337.0, 35.0, 1.8), (60.0, 28.0, 2.3)]]  # fmt: skip
+
+
+def test_a_box_pose_is_recovered_up_to_its_symmetry_and_its_half_turn_reported_ambiguous(box_views):
+    """One 128 px view of a box of known size, its camera hidden: the pose up to the box's own symmetries, and the
+    half turn about the vertical (an identical silhouette) reported as a runner-up of equal energy."""
+    settings = refine_settings("masks", size=64)
+    for az, el, d, view in box_views:
+        post = refine_pose_and_shape(Box(), torch.zeros(3), torch.full((3,), 1e-4), [view], PoseGroups.separate(1),
+                                     settings)  # fmt: skip
+        truth = Pose.from_world_to_cam(view.world_to_cam)
+        error = min(rotation_angle_deg(post.poses[0].R, truth.R @ flip) for flip in BOX_FLIPS)
+        # Measured 0.9-6.7 degrees over five such views (docs/pose.md): the LM stops where the sampled silhouette
+        # minimum's noise hides the last degrees; a wrong basin would be tens of degrees off.
+        assert error < 8.0, (az, error)
+        record = post.pose_record(0)
+        assert record["ambiguous"], (az, record["runner_up"])
+        assert record["runner_up"]["rotation_from_best_deg"] > 150.0
+
+
+def test_an_asymmetric_shape_is_not_reported_ambiguous():
+    px, settings = 128, refine_settings("masks", size=64)
+    view = view_of(BoxAndBall(), torch.zeros(3), 60.0, 28.0, 2.3, px)
+    post = refine_pose_and_shape(BoxAndBall(), torch.zeros(3), torch.full((3,), 1e-4), [view],
+                                 PoseGroups.separate(1), settings)  # fmt: skip
+    truth = Pose.from_world_to_cam(view.world_to_cam)
+    assert rotation_angle_deg(post.poses[0].R, truth.R) < 10.0
+    record = post.pose_record(0)
+    assert not record["ambiguous"], record["runner_up"]
+    assert record["rotation_std_deg"] < 5.0
+    summary = post.record()["pose"]
+    assert summary["estimated"] and len(summary["cameras"]) == 1
+
+
+def test_pose_estimation_says_what_it_needs():
+    view = ObservedView(K=look_at(0.0, 20.0, 2.0, FOV, 32)[0], world_to_cam=np.eye(4), mask=torch.zeros(32, 32))
+    with pytest.raises(ValueError, match="empty mask"):
+        refine_pose_and_shape(Ball(), torch.zeros(1), torch.ones(1), [view], PoseGroups.separate(1))
+    with pytest.raises(ValueError, match="masks alone"):
+        refine_pose_and_shape(Ball(), torch.zeros(1), torch.ones(1), [view], PoseGroups.separate(1),
+                              refine_settings("depth"))  # fmt: skip

@@ -1,0 +1,505 @@
+"""Pose and shape together from masks: the object's pose as part of the refinement's state, for views with no
+camera in the object's frame.
+
+Views come in pose groups. The views of one group share one unknown object pose T_g (`pose.Pose`) and know
+their motion from the group's reference camera (cam_from_ref: a robot's odometry, a turntable, R2N2's rows
+with the object's frame hidden); a view with no known motion is a group of its own (cam_from_ref = I).
+The state is theta = (z, xi_1 .. xi_G): the code and each group's pose perturbation (`pose` module), and
+
+    E(theta) = 1/2 (z - mu)^T Sigma^-1 (z - mu) + sum_g 1/2 e_g^T P_g e_g + 1/2 sum_i W_i r_i(z, T)^2,
+
+with the same silhouette residuals and weights as the known-camera refinement (`posterior`), and a prior
+on each pose about its starting hypothesis: e_g = (rotation vector, translation in object units, log
+scale) from the hypothesis to T_g, precision P_g (`PoseSettings`). The scale is in the state only where
+a group's baseline makes it observable; from one view a larger, farther object looks the same.
+
+Symmetry: chairs and tables look alike from the front and the back, so each group starts from
+`azimuths` hypotheses around the vertical, at `elevation`, placed so the fused code's silhouette covers the
+mask's box. Each is screened by a few pose-only Levenberg-Marquardt steps at the fused code; the `keep`
+lowest then run the joint LM over (pose, code), and the lowest final energy wins. The runner-up is the
+lowest hypothesis whose rotation differs from the winner's by more than `distinct_deg`; an energy gap
+under `ambiguous_gap` is reported as ambiguous (two poses the masks explain about equally well).
+
+The Laplace posterior at the MAP is a full covariance over (z, xi): (prior precision + s J^T W J)^-1. The
+code's marginal (its [D, D] block: the pose integrated out, exactly for the Gaussian) is the shape's
+posterior, so the vertex std computed from it is marginalised over the pose in the object's frame.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ushape.data.cameras import R2N2_FOV_DEG, look_at_extrinsics, orbit_position
+from ushape.decoder.query import frozen
+from ushape.refinement.observation import Residuals, code_functions, code_grid, residuals
+from ushape.refinement.pose import Pose, point_jacobian, rotation_angle_deg, scale_observable
+from ushape.refinement.posterior import (
+    Posterior,
+    RefineSettings,
+    prior_precision,
+    row_weights,
+    summarise,
+)
+from ushape.refinement.views import ObservedView, screen_view
+
+
+@dataclass(frozen=True)
+class PoseSettings:
+    """How the pose is searched and what is assumed of it before the masks are read."""
+
+    azimuths: int = 8  # starting hypotheses per group, evenly around the object's vertical (+y)
+    elevation: float = 27.5  # their camera elevation in degrees (R2N2's renders: 25-30)
+    distance: float = 2.0  # their first camera distance (object units), then set by the mask's box
+    fov_deg: float = R2N2_FOV_DEG  # field of view for an image with no intrinsics (across its larger side)
+    keep: int = 2  # hypotheses that run the joint LM after screening
+    screen_iterations: int = 6  # pose-only LM steps per hypothesis at the fused code
+    # Silhouette sharpness per LM stage, x the observation's tau, widest first: a pose far off has silhouette rows
+    # only where a wide sigmoid reaches. Screening runs at the first; the joint runs go through all of them.
+    tau_schedule: tuple[float, ...] = (8.0, 4.0, 2.0, 1.0)
+    stage_iterations: int = 8  # joint LM steps at most per sharpness
+    rotation_prior_deg: float = 60.0  # the prior's std about each hypothesis, per axis
+    translation_prior: float = 1.0  # ... in object units
+    scale_prior: float = 0.15  # ... of the log scale (where a baseline makes it observable)
+    distinct_deg: float = 30.0  # a runner-up is a pose at least this far from the winner
+    ambiguous_gap: float = 3.0  # a runner-up within this energy of the winner: ambiguous
+
+    def precision(self, dofs: int) -> Tensor:  # [dofs, dofs] float64
+        stds = [math.radians(self.rotation_prior_deg)] * 3 + [self.translation_prior] * 3 + [self.scale_prior]
+        return torch.diag(1.0 / torch.tensor(stds[:dofs], dtype=torch.float64) ** 2)
+
+
+@dataclass(frozen=True)
+class PoseGroups:
+    """Which views share a pose: group [V] (index per view) and cam_from_ref [V] ([4, 4] rigid, from the group's
+    reference camera; identity for a view alone)."""
+
+    group: tuple[int, ...]
+    cams_from_ref: tuple[np.ndarray, ...]
+
+    @classmethod
+    def separate(cls, n_views: int) -> "PoseGroups":
+        """Every view its own pose (no known relative motion)."""
+        return cls(tuple(range(n_views)), tuple(np.eye(4) for _ in range(n_views)))
+
+    @classmethod
+    def shared(cls, cams_from_first: Sequence[np.ndarray]) -> "PoseGroups":
+        """One pose for all, each view's motion from the first camera given."""
+        return cls(tuple(0 for _ in cams_from_first), tuple(np.asarray(c, dtype=np.float64) for c in cams_from_first))
+
+    @property
+    def count(self) -> int:
+        return max(self.group) + 1 if self.group else 0
+
+    def members(self, g: int) -> list[int]:
+        return [i for i, k in enumerate(self.group) if k == g]
+
+    def dofs(self, g: int) -> int:
+        return 7 if scale_observable([self.cams_from_ref[i] for i in self.members(g)]) else 6
+
+
+@dataclass
+class PosedPosterior(Posterior):
+    """The refined code (its marginal: mu [D], cov [D, D]) with each pose group's MAP pose, its covariance over
+    (rotation [rad], translation [object units], log scale where observable), and the hypotheses' report."""
+
+    poses: list[Pose] = field(default_factory=list)
+    pose_cov: list[Tensor] = field(default_factory=list)
+    hypotheses: list[dict[str, Any]] = field(default_factory=list)  # per group: its hypotheses and runner-up
+    cameras: list[np.ndarray] = field(default_factory=list)  # per view: its estimated world_to_cam [4, 4]
+
+    def pose_record(self, g: int) -> dict[str, Any]:
+        """Group g's pose, its std (degrees per axis and overall; object units; log scale) and hypotheses."""
+        cov, pose = self.pose_cov[g].double(), self.poses[g]
+        rot = cov[:3, :3]
+        return {
+            "rotation_std_deg": math.degrees(math.sqrt(float(torch.trace(rot)) / 3.0)),
+            "rotation_std_deg_axes": [math.degrees(math.sqrt(float(v))) for v in torch.diagonal(rot)],
+            "translation_std": [math.sqrt(float(v)) for v in torch.diagonal(cov[3:6, 3:6])],
+            "scale": pose.scale,
+            "scale_std": math.sqrt(float(cov[6, 6])) if cov.shape[0] > 6 else None,
+            **self.hypotheses[g],
+        }
+
+    def record(self) -> dict[str, Any]:
+        out = super().record()
+        out["pose"] = {
+            "estimated": True,
+            "groups": [self.pose_record(g) for g in range(len(self.poses))],
+            "cameras": [c.tolist() for c in self.cameras],
+        }
+        return out
+
+
+def default_intrinsics(image_hw: tuple[int, int], fov_deg: float) -> np.ndarray:
+    """K [3, 3] of an image with no camera file: the field of view across its larger side, centred."""
+    h, w = image_hw
+    f = 0.5 * max(h, w) / math.tan(math.radians(fov_deg) / 2.0)
+    return np.array([[f, 0.0, w / 2.0], [0.0, f, h / 2.0], [0.0, 0.0, 1.0]])
+
+
+# ---- the state's energy and Jacobian -------------------------------------------------------------------------
+
+
+@dataclass
+class State:
+    z: Tensor  # [D] float64
+    poses: list[Pose]
+
+
+class Problem:
+    """One joint refinement: the prior, the views and their groups, and the pose priors about the hypotheses."""
+
+    def __init__(self, decoder, mu, var, views, groups, settings, pose_settings, hypotheses, code_precision=None):
+        self.decoder, self.views, self.groups = decoder, list(views), groups
+        self.settings, self.pose_settings, self.obs = settings, pose_settings, settings.observation
+        self.mu = mu.detach().double()
+        self.code_precision = prior_precision(var) if code_precision is None else code_precision
+        self.hypotheses = hypotheses  # [G] Pose: each pose prior's centre
+        self.dofs = [groups.dofs(g) for g in range(groups.count)]
+        self.pose_precision = [pose_settings.precision(d) for d in self.dofs]
+        D = self.mu.shape[0]
+        self.columns = [D + sum(self.dofs[:g]) for g in range(groups.count)]
+        self.width = D + sum(self.dofs)
+        self._grid: tuple[Tensor, Any] | None = None
+
+    def posed(self, state: State) -> list[ObservedView]:
+        return [
+            replace(v, world_to_cam=state.poses[g].object_camera(c))
+            for v, g, c in zip(self.views, self.groups.group, self.groups.cams_from_ref)
+        ]
+
+    def pose_errors(self, state: State) -> list[np.ndarray]:
+        return [self.hypotheses[g].error(state.poses[g])[: self.dofs[g]] for g in range(self.groups.count)]
+
+    def residuals(self, state: State) -> tuple[Residuals, Tensor]:
+        z = state.z.float()
+        if self._grid is None or not torch.equal(self._grid[0], z):  # pose-only steps keep the code: one grid
+            self._grid = (z.clone(), code_grid(self.decoder, z, self.obs))
+        res = residuals(self.decoder, z, self.posed(state), self.obs, False, jacobian=False, grid=self._grid[1])
+        return res, row_weights(res, self.settings)
+
+    def energy(self, state: State, res: Residuals, w: Tensor) -> float:
+        dz = state.z - self.mu
+        e = 0.5 * dz @ self.code_precision @ dz + 0.5 * (w * res.r.double().square()).sum()
+        for err, P in zip(self.pose_errors(state), self.pose_precision):
+            err = torch.as_tensor(err)
+            e = e + 0.5 * err @ P @ err
+        return float(e)
+
+    def jacobian(self, state: State, res: Residuals) -> Tensor:  # [R, width] float64
+        """dr/d(z, xi_1..xi_G): one gradient pass over the rows' points, the code and pose columns by the chain rule."""
+        J = torch.zeros(res.r.shape[0], self.width, dtype=torch.float64)
+        points = torch.cat([p.points for p in res.pending]) if res.pending else torch.zeros(0, 3)
+        if not points.shape[0]:
+            return J
+        _, gradients = code_functions(self.decoder, state.z.float())
+        _, grad_z, grad_x = gradients(points)
+        D, start = self.mu.shape[0], 0
+        for p in res.pending:
+            end = start + p.points.shape[0]
+            if end > start:
+                gz, gx = grad_z[start:end], grad_x[start:end]
+                g = self.groups.group[int(res.view[p.rows[0]])]
+                c, d = self.columns[g], self.dofs[g]
+                J[p.rows, :D] = p.finish(gz, gx).double()
+                J[p.rows, c : c + d] = p.finish(point_jacobian(p.points, gx, d), gx).double()
+            start = end
+        return J
+
+    def prior_terms(self, state: State) -> tuple[Tensor, Tensor]:
+        """The priors' Gauss-Newton Hessian [width, width] and gradient [width] (a pose error's Jacobian in its
+        own perturbation taken as the identity: exact at the hypothesis, first order about it)."""
+        H = torch.zeros(self.width, self.width, dtype=torch.float64)
+        g = torch.zeros(self.width, dtype=torch.float64)
+        D = self.mu.shape[0]
+        H[:D, :D] = self.code_precision
+        g[:D] = self.code_precision @ (state.z - self.mu)
+        for k, (err, P) in enumerate(zip(self.pose_errors(state), self.pose_precision)):
+            c, d = self.columns[k], self.dofs[k]
+            H[c : c + d, c : c + d] = P
+            g[c : c + d] = P @ torch.as_tensor(err)
+        return H, g
+
+    def step(self, state: State, delta: Tensor) -> State:
+        D = self.mu.shape[0]
+        poses = [
+            p.perturbed(delta[self.columns[g] : self.columns[g] + self.dofs[g]].numpy())
+            for g, p in enumerate(state.poses)
+        ]
+        return State(state.z + delta[:D], poses)
+
+
+def at_sharpness(problem: Problem, multiple: float) -> Problem:
+    """The same problem with the silhouette's tau multiplied by `multiple`."""
+    obs = replace(problem.settings.observation, tau=problem.settings.observation.tau * multiple)
+    stage = Problem(
+        problem.decoder,
+        problem.mu,
+        None,
+        problem.views,
+        problem.groups,
+        replace(problem.settings, observation=obs),
+        problem.pose_settings,
+        problem.hypotheses,
+        code_precision=problem.code_precision,
+    )
+    stage._grid = problem._grid  # the SDF grid does not depend on the sharpness
+    return stage
+
+
+def staged(problem: Problem, state: State, iterations: int, code_free: bool, schedule: Sequence[float]):
+    """`levenberg_marquardt` at each sharpness of the schedule in turn, each from the last's result: (the final
+    stage's problem, state, residuals, weights, J, energy, steps in all)."""
+    total = 0
+    for multiple in schedule:
+        stage = at_sharpness(problem, multiple)
+        state, res, w, J, e, steps = levenberg_marquardt(stage, state, iterations, code_free)
+        total += steps
+    return stage, state, res, w, J, e, total
+
+
+def levenberg_marquardt(problem: Problem, state: State, iterations: int, code_free: bool):
+    """Damped Gauss-Newton over the poses (and the code where code_free): (state, residuals, weights, J, energy,
+    steps); J is None where the residuals went non-finite."""
+    settings = problem.settings
+    res, w = problem.residuals(state)
+    J = problem.jacobian(state, res)
+    e = problem.energy(state, res, w)
+    free = torch.ones(problem.width, dtype=torch.bool)
+    free[: problem.mu.shape[0]] = code_free
+    lam, steps = settings.damping, 0
+    for steps in range(1, iterations + 1):
+        if not (torch.isfinite(res.r).all() and torch.isfinite(J).all()):
+            return state, res, w, None, e, steps
+        H_prior, g_prior = problem.prior_terms(state)
+        H = (H_prior + J.T @ (w[:, None] * J))[free][:, free]
+        g = (g_prior + J.T @ (w * res.r.double()))[free]
+        improved = False
+        for _ in range(6):
+            delta = torch.zeros(problem.width, dtype=torch.float64)
+            delta[free] = torch.linalg.solve(H + lam * torch.diag(torch.diagonal(H)), -g)
+            trial = problem.step(state, delta)
+            trial_res, trial_w = problem.residuals(trial)
+            trial_e = problem.energy(trial, trial_res, trial_w)
+            if trial_e < e:
+                improved = True
+                break
+            lam *= 4.0
+        if not improved:
+            break
+        state, res, w, lam = trial, trial_res, trial_w, max(lam / 3.0, 1e-7)
+        J = problem.jacobian(state, res)
+        done = (e - trial_e) < settings.tolerance * max(e, 1e-12)
+        e = trial_e
+        if done:
+            break
+    return state, res, w, J, e, steps
+
+
+# ---- hypotheses -------------------------------------------------------------------------------------------------
+
+
+def interior_points(decoder: torch.nn.Module, z: Tensor, nodes: int = 24) -> Tensor:
+    """Grid points [P, 3] inside the code's surface (at least the one nearest inside): where its silhouette falls."""
+    sdf, _ = code_functions(decoder, z.float())
+    axis = torch.linspace(-1.0, 1.0, nodes)
+    points = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    values = sdf(points)
+    inside = values < 0
+    return points[inside] if bool(inside.any()) else points[values.argmin()][None]
+
+
+def mask_box(view: ObservedView) -> tuple[float, float, float, float]:
+    """(u0, v0, u1, v1) of the mask's observed foreground, pixel edges."""
+    mask = (view.mask > 0.5) & view.seen()
+    rows, cols = mask.any(1).nonzero().squeeze(1), mask.any(0).nonzero().squeeze(1)
+    return float(cols.min()), float(rows.min()), float(cols.max() + 1), float(rows.max() + 1)
+
+
+def placed_hypothesis(
+    R: np.ndarray, view: ObservedView, cam_from_ref: np.ndarray, points: np.ndarray, distance: float
+) -> Pose:
+    """A pose of rotation R (object -> reference) whose projection of `points` into `view` matches its mask's box:
+    the depth set by the boxes' sizes, then the offset by their centres (twice, the second to settle)."""
+    K = np.asarray(view.K, dtype=np.float64)
+    u0, v0, u1, v1 = mask_box(view)
+    pose = Pose(R, np.array([0.0, 0.0, distance]) - cam_from_ref[:3, 3] @ cam_from_ref[:3, :3], 1.0)
+    for _ in range(2):
+        cam = pose.object_camera(cam_from_ref)
+        x = points @ cam[:3, :3].T + cam[:3, 3]
+        x = x[x[:, 2] > 1e-3]
+        uv = (x @ K.T)[:, :2] / x[:, 2:3]
+        (a0, b0), (a1, b1) = uv.min(0), uv.max(0)
+        size = max(a1 - a0, b1 - b0) / max(u1 - u0, v1 - v0)
+        depth = float(cam[2, 3]) * size
+        centre = np.array([(u0 + u1) / 2.0 - K[0, 2], (v0 + v1) / 2.0 - K[1, 2]]) / np.array([K[0, 0], K[1, 1]])
+        shift = np.array([(a0 + a1) / 2.0 - K[0, 2], (b0 + b1) / 2.0 - K[1, 2]]) / np.array([K[0, 0], K[1, 1]])
+        centre_cam = np.array([*(centre - shift + cam[:2, 3] / cam[2, 3]) * depth, depth])
+        # the object's origin at centre_cam in the view's camera -> in the reference frame
+        origin_ref = cam_from_ref[:3, :3].T @ (centre_cam * pose.scale - cam_from_ref[:3, 3])
+        pose = Pose(R, origin_ref, pose.scale)
+    return pose
+
+
+def hypothesis_rotations(settings: PoseSettings, cam_from_ref: np.ndarray) -> list[tuple[float, np.ndarray]]:
+    """(azimuth, R [3, 3]): the object's rotation into the reference frame as seen from `azimuths` cameras around
+    it at `elevation`, for a view at cam_from_ref."""
+    out = []
+    for k in range(settings.azimuths):
+        azimuth = 360.0 * k / settings.azimuths
+        eye = orbit_position(azimuth, settings.elevation, 1.0)
+        cam_from_object = look_at_extrinsics(eye, np.zeros(3))[:3, :3]
+        out.append((azimuth, cam_from_ref[:3, :3].T @ cam_from_object))
+    return out
+
+
+# ---- the estimate ---------------------------------------------------------------------------------------------
+
+
+def refine_pose_and_shape(
+    decoder: torch.nn.Module,
+    mu: Tensor,  # [D] the fused code
+    var: Tensor,  # [D] or [D, D] its variance
+    views: Sequence[ObservedView],  # K and mask used; world_to_cam is replaced by the estimate
+    groups: PoseGroups,
+    settings: RefineSettings = RefineSettings(),
+    pose_settings: PoseSettings = PoseSettings(),
+) -> PosedPosterior:
+    """MAP (pose, code) and the Laplace posterior over both, from the views' masks, with no camera in the object's
+    frame (module docstring). Every group needs at least one view whose mask shows the object."""
+    if settings.mode != "masks":
+        raise ValueError("the pose is estimated from masks alone: use mode 'masks' (depth needs known cameras)")
+    if len(groups.group) != len(views):
+        raise ValueError(f"{len(views)} views but {len(groups.group)} group entries")
+    for i, v in enumerate(views):
+        screened = screen_view(replace(v, world_to_cam=_FRONT), use_depth=False)
+        if screened.view is None:
+            raise ValueError(f"view {i}: {screened.fallback}: a pose needs a mask that outlines the object")
+    with frozen(decoder):
+        points = interior_points(decoder, mu.detach()).numpy().astype(np.float64)
+        starts = []
+        for g in range(groups.count):
+            first = groups.members(g)[0]
+            cam = np.asarray(groups.cams_from_ref[first], dtype=np.float64)
+            starts.append(
+                [
+                    (azimuth, placed_hypothesis(R, views[first], cam, points, pose_settings.distance))
+                    for azimuth, R in hypothesis_rotations(pose_settings, cam)
+                ]
+            )
+        return _search(decoder, mu, var, views, groups, settings, pose_settings, starts)
+
+
+_FRONT = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 2.0], [0, 0, 0, 1.0]])  # a valid camera for screening
+
+
+def _search(decoder, mu, var, views, groups, settings, pose_settings, starts) -> PosedPosterior:
+    """Screen every group's hypotheses at the fused code (the other groups at their best so far), run the joint LM
+    from the best of all groups and from each group's distinct alternates, and return the lowest-energy run's
+    Laplace posterior with each group's runner-up."""
+    best = [h[0][1] for h in starts]
+    schedule = pose_settings.tau_schedule or (1.0,)
+    screened: list[list[dict[str, Any]]] = []
+    mu64 = mu.detach().double()
+    for g in range(groups.count):
+        rows = []
+        for azimuth, hyp in starts[g]:
+            hyps = list(best)
+            hyps[g] = hyp
+            problem = Problem(decoder, mu, var, views, groups, settings, pose_settings, hyps)
+            _, state, *_, e, _ = staged(
+                problem, State(mu64.clone(), hyps), pose_settings.screen_iterations, False, schedule[:1]
+            )
+            rows.append({"azimuth": azimuth, "screen_energy": e, "pose": state.poses[g], "start": hyp})
+        rows.sort(key=lambda r: r["screen_energy"])
+        best[g] = rows[0]["pose"]
+        screened.append(rows)
+    chosen = [distinct_rows(rows, pose_settings) for rows in screened]
+    plans = [tuple(0 for _ in screened)]  # per run: which of each group's distinct rows it starts from
+    for g, picks in enumerate(chosen):
+        plans += [tuple(k if h == g else 0 for h in range(len(screened))) for k in range(1, len(picks))]
+    runs = []
+    for plan in plans:
+        rows = [screened[g][chosen[g][k]] for g, k in enumerate(plan)]
+        problem = Problem(decoder, mu, var, views, groups, settings, pose_settings, [r["start"] for r in rows])
+        problem, state, res, w, J, e, steps = staged(
+            problem, State(mu64.clone(), [r["pose"] for r in rows]), pose_settings.stage_iterations, True, schedule
+        )
+        runs.append({"plan": plan, "energy": e, "problem": problem, "state": state, "fit": (res, w, J, steps)})
+    winner = min(runs, key=lambda r: r["energy"])
+    report = [_group_report(g, screened[g], chosen[g], runs, winner, pose_settings) for g in range(len(screened))]
+    res, w, J, steps = winner["fit"]
+    return _laplace(winner["problem"], winner["state"], res, w, J, steps, winner["energy"], report)
+
+
+def distinct_rows(rows: list[dict[str, Any]], pose_settings: PoseSettings) -> list[int]:
+    """Indices of up to `keep` screened hypotheses, lowest energy first, each at least `distinct_deg` from those
+    before it: the alternatives worth a joint run."""
+    picks: list[int] = []
+    for i, row in enumerate(rows):
+        if all(rotation_angle_deg(row["pose"].R, rows[j]["pose"].R) >= pose_settings.distinct_deg for j in picks):
+            picks.append(i)
+        if len(picks) == pose_settings.keep:
+            break
+    return picks
+
+
+def _group_report(g, rows, picks, runs, winner, pose_settings) -> dict[str, Any]:
+    """Group g's hypotheses (start azimuth, screened energy, final energy of the joint run from it) and its
+    runner-up: the lowest joint run whose pose of g ends at least `distinct_deg` from the winner's."""
+    won = winner["state"].poses[g]
+    hypotheses = [{"azimuth": r["azimuth"], "screen_energy": r["screen_energy"]} for r in rows]
+    runner = None
+    for run in runs:
+        k = run["plan"][g]
+        hypotheses[picks[k]].setdefault("joint_energy", run["energy"])
+        angle = rotation_angle_deg(run["state"].poses[g].R, won.R)
+        if angle >= pose_settings.distinct_deg and (runner is None or run["energy"] < runner["energy"]):
+            runner = {
+                "start_azimuth": rows[picks[k]]["azimuth"],
+                "rotation_from_best_deg": angle,
+                "energy": run["energy"],
+                "energy_gap": run["energy"] - winner["energy"],
+                "R": run["state"].poses[g].R.tolist(),
+                "t": run["state"].poses[g].t.tolist(),
+            }
+    return {
+        "start_azimuth": rows[picks[winner["plan"][g]]]["azimuth"],
+        "energy": winner["energy"],
+        "hypotheses": hypotheses,
+        "runner_up": runner,
+        "ambiguous": bool(runner is not None and runner["energy_gap"] < pose_settings.ambiguous_gap),
+    }
+
+
+def _laplace(problem: Problem, state: State, res, w, J, steps, e, report) -> PosedPosterior:
+    D = problem.mu.shape[0]
+    rows, rms = summarise(res)
+    if J is None or not torch.isfinite(J).all():
+        raise FloatingPointError("the joint refinement met a non-finite residual or Jacobian")
+    H_prior, _ = problem.prior_terms(state)
+    information = J.T @ (w[:, None] * J)
+    cov = torch.linalg.inv(H_prior + problem.settings.information_scale * information)
+    cov = 0.5 * (cov + cov.T)
+    pose_cov = [cov[c : c + d, c : c + d].float() for c, d in zip(problem.columns, problem.dofs)]
+    cameras = [c for c in (v.world_to_cam for v in problem.posed(state))]
+    return PosedPosterior(
+        mu=state.z.float(),
+        cov=cov[:D, :D].float(),
+        iterations=steps,
+        energy_end=e,
+        rows=rows,
+        rms=rms,
+        information=information[:D, :D],
+        views=[{"used": "masks", "fallback": None} for _ in problem.views],
+        poses=state.poses,
+        pose_cov=pose_cov,
+        hypotheses=report,
+        cameras=cameras,
+    )
