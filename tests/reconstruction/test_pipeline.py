@@ -236,6 +236,38 @@ def test_refine_without_cameras_says_so_and_keeps_the_fused_code(tiny_run, spher
         )
 
 
+def test_refine_masks_without_cameras_estimates_the_pose_and_relative_poses_share_one(
+    tiny_run, sphere_predictor, tmp_path
+):
+    renders = sorted((tiny_run["world"] / "renders" / "test_0").glob("*.png"))[:2]
+    photos = []
+    for i, render in enumerate(renders):  # copied away from views.npz: no camera
+        photos.append(tmp_path / f"photo{i}.png")
+        photos[-1].write_bytes(render.read_bytes())
+    settings = dataclasses.replace(SMALL, refine="masks", refine_size=12)
+    summary = reconstruct(sphere_predictor, photos, BayesianKFusion(k=2), tmp_path / "out", settings)
+    record = summary["refinement"]
+    assert record["fallback"] is None and record["views_with_camera"] == 0
+    groups = record["pose"]["groups"]
+    assert len(groups) == 2 and len(record["pose"]["cameras"]) == 2  # no known motion: a pose per view
+    assert all(g["scale_std"] is None for g in groups)  # one view cannot tell size from distance
+    with np.load(tiny_run["world"] / "renders" / "test_0" / "views.npz") as data:
+        odometry = data["world_to_cam"][:2]
+    shifted = np.eye(4)
+    shifted[:3, 3] = [0.3, -0.2, 1.0]  # the same motion, written in another frame
+    np.savez(tmp_path / "odometry.npz", world_to_cam=odometry @ np.linalg.inv(shifted))
+    shared = dataclasses.replace(settings, relative_poses=str(tmp_path / "odometry.npz"))
+    summary = reconstruct(sphere_predictor, photos, BayesianKFusion(k=2), tmp_path / "out2", shared)
+    groups = summary["refinement"]["pose"]["groups"]
+    assert len(groups) == 1 and groups[0]["scale_std"] is not None  # one pose; the baseline tells the size
+    given = dataclasses.replace(settings, pose="given")
+    summary = reconstruct(sphere_predictor, photos, BayesianKFusion(k=2), tmp_path / "out3", given)
+    assert summary["refinement"]["fallback"] == "no view has a camera"
+    with pytest.raises(ValueError, match="need --refine masks"):
+        reconstruct(sphere_predictor, photos, BayesianKFusion(k=2), tmp_path / "o4",
+                    dataclasses.replace(SMALL, pose="estimate"))  # fmt: skip
+
+
 def test_cli_camera_file_needs_refine(tiny_run, tmp_path, capsys):
     views = sorted((tiny_run["world"] / "renders" / "test_0").glob("*.png"))[:1]
     np.savez(tmp_path / "cams.npz", K=np.eye(3)[None], world_to_cam=np.eye(4)[None])

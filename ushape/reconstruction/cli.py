@@ -38,7 +38,7 @@ from ushape.reconstruction.pipeline import check_settings, reconstruct
 from ushape.reconstruction.predictor import collect_inputs
 from ushape.reconstruction.pretrained import PREFIX, available_models, open_model
 from ushape.reconstruction.refine_calibration import FIT_SHAPES, fit_and_store_refinement_calibration
-from ushape.reconstruction.settings import ReconstructionSettings
+from ushape.reconstruction.settings import POSE_CHOICES, ReconstructionSettings
 from ushape.reconstruction.temperature_store import fit_and_store_temperature
 from ushape.refinement import MODES as REFINE_MODES
 from ushape.refinement.inputs import input_views
@@ -156,6 +156,25 @@ def build_parser() -> argparse.ArgumentParser:
         help="prior draws scored beside the fused mean, the refinement starting from the lowest energy (0: the mean; "
         "8 found better basins on chairs from 6 depth views, docs/refinement.md)",
     )
+    parser.add_argument(
+        "--pose",
+        default=DEFAULTS.pose,
+        choices=POSE_CHOICES,
+        help="with --refine masks: estimate the object's pose with its shape (auto: where no image has a camera; "
+        "estimate: always, a known camera's K kept; given: never), docs/pose.md",
+    )
+    parser.add_argument(
+        "--fov",
+        type=float,
+        default=DEFAULTS.fov,
+        help="field of view in degrees across the larger side of an image with no camera (default: R2N2's renders')",
+    )
+    parser.add_argument(
+        "--relative-poses",
+        default=None,
+        help="npz with world_to_cam [V,4,4] of the images in any one frame (odometry, a turntable): the images "
+        "share one estimated object pose and only their motion between each other is used",
+    )
     parser.add_argument("--cmap", default=DEFAULTS.cmap, help="matplotlib colormap for the std colours")
     parser.add_argument(
         "--precision",
@@ -189,6 +208,9 @@ def settings_from(args: argparse.Namespace) -> ReconstructionSettings:
         refine=args.refine,
         refine_size=args.refine_size,
         refine_starts=args.refine_starts,
+        pose=args.pose,
+        fov=args.fov,
+        relative_poses=args.relative_poses,
         precision=args.precision,
     )
 
@@ -203,7 +225,24 @@ def refinement_outcome(record: dict) -> str:
     notes = "; ".join(f"view {i}: {v['fallback']}" for i, v in enumerate(views) if v["fallback"])
     with_depth = sum(v["used"] == "masks+depth" for v in views)
     depth = f", depth from {with_depth}" if record["mode"] == "depth" else ""
-    return f"{head}: refined on {len(used)} of {len(views)} views{depth}" + (f" ({notes})" if notes else "")
+    line = f"{head}: refined on {len(used)} of {len(views)} views{depth}" + (f" ({notes})" if notes else "")
+    return line + "".join(f"\n  {pose_outcome(g, i)}" for i, g in enumerate(record.get("pose", {}).get("groups", [])))
+
+
+def pose_outcome(group: dict, index: int) -> str:
+    """One line per estimated pose: its std, and the runner-up where the masks leave the pose ambiguous."""
+    line = (
+        f"pose {index} estimated (no camera given): rotation std {group['rotation_std_deg']:.1f} deg, translation std "
+        f"{max(group['translation_std']):.3f} object units"
+    )
+    runner = group.get("runner_up")
+    if runner is not None:
+        verdict = "AMBIGUOUS: " if group["ambiguous"] else ""
+        line += (
+            f"; {verdict}runner-up {runner['rotation_from_best_deg']:.0f} deg away, energy gap "
+            f"{runner['energy_gap']:.1f}"
+        )
+    return line
 
 
 def main(argv: Sequence[str] | None = None) -> int:

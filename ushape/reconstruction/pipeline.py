@@ -31,7 +31,7 @@ from ushape.reconstruction.page import known_cameras, page_figures, reconstructi
 from ushape.reconstruction.predictor import Predictor
 from ushape.reconstruction.refine_calibration import read_refinement_calibration
 from ushape.reconstruction.refined_code import r2n2_frame_of, refined
-from ushape.reconstruction.settings import ReconstructionSettings
+from ushape.reconstruction.settings import POSE_CHOICES, ReconstructionSettings
 from ushape.reconstruction.view_depth import depth_maps, view_camera, write_depth_maps
 from ushape.reconstruction.visibility import hidden_over_visible
 from ushape.refinement import MODES as REFINE_MODES
@@ -58,6 +58,14 @@ def check_settings(settings: ReconstructionSettings) -> None:
     """A ValueError naming the setting (and its reconstruct.py flag) that is out of range, before any work."""
     if settings.refine is not None and settings.refine not in REFINE_MODES:
         raise ValueError(f"refine must be one of {REFINE_MODES} or None, got {settings.refine!r}")
+    if settings.pose not in POSE_CHOICES:
+        raise ValueError(f"pose (--pose) must be one of {POSE_CHOICES}, got {settings.pose!r}")
+    if settings.refine != "masks" and (settings.pose == "estimate" or settings.relative_poses):
+        raise ValueError(
+            "the object's pose is estimated from masks: --pose estimate and --relative-poses need --refine masks"
+        )
+    if not 0 < settings.fov < 180:
+        raise ValueError(f"fov (--fov) must be in (0, 180) degrees, got {settings.fov}")
     if settings.refine_starts < 0:
         raise ValueError(f"refine_starts (--refine-starts) must be >= 0, got {settings.refine_starts}")
     if settings.refine_size < REFINE_MIN_SIZE:
@@ -109,9 +117,25 @@ def encode_views(
         with timer("refine"):
             calibration = read_refinement_calibration(predictor.checkpoint, settings.refine)
             encoded.fused, encoded.refinement, encoded.refined_views = refined(
-                predictor.decoder, fused, inputs, paths, observations, settings, calibration, r2n2_frame_of(predictor)
+                predictor.decoder,
+                fused,
+                inputs,
+                paths,
+                observations,
+                settings,
+                calibration,
+                r2n2_frame_of(predictor),
+                mask_files(inputs, paths, masks),
             )
     return encoded
+
+
+def mask_files(inputs, paths, masks) -> list[Path] | None:
+    """The mask files of the inputs that could be read (paths), in their order; None where none were given."""
+    if masks is None:
+        return None
+    by_input = dict(zip((Path(i) for i in inputs), masks))
+    return [Path(by_input[Path(p)]) for p in paths]
 
 
 def reconstruct(

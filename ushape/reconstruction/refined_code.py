@@ -4,6 +4,7 @@ cameras, masks and depth, the stored --fit-refinement calibration, and the recor
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -14,7 +15,14 @@ from ushape.fusion.rules import FusedCode
 from ushape.reconstruction.predictor import Predictor
 from ushape.reconstruction.settings import ReconstructionSettings
 from ushape.refinement import ObservedView, refine, refine_settings
-from ushape.refinement.inputs import R2N2Frame, input_views, typical_r2n2_frame
+from ushape.refinement.inputs import (
+    R2N2Frame,
+    input_views,
+    relative_pose_groups,
+    typical_r2n2_frame,
+    unposed_views,
+)
+from ushape.refinement.joint import PoseGroups, refine_pose_and_shape
 from ushape.workspace import CONFIG_FILE
 
 log = logging.getLogger(__name__)
@@ -31,6 +39,7 @@ def refined(
     settings: ReconstructionSettings,
     calibration: dict[str, Any] | None = None,  # --fit-refinement's fit for this mode (None: none)
     r2n2_frame: R2N2Frame | None = None,  # R2N2's frame in the model's, for R2N2 renders' cameras
+    masks: Sequence[Path] | None = None,  # the mask files of `paths` (pose estimation reads them)
 ) -> tuple[FusedCode, dict[str, Any], list[ObservedView]]:
     """The fused code refined on the views (FusedCode with var the full covariance [D, D]), its record and the
     views it was refined on; with a calibration, the posterior at its information scale s, and the record
@@ -55,6 +64,8 @@ def refined(
     options = refine_settings(
         settings.refine, settings.refine_size, information_scale=scale, starts=settings.refine_starts
     )
+    if estimates_pose(settings, views):
+        return pose_refined(decoder, fused, paths, views, settings, options, calibration, masks)
     posterior = refine(decoder, fused.mu, fused.var, views, options)
     record = {"mode": settings.refine, "starts": settings.refine_starts, **posterior.record()}
     record["views_with_camera"] = sum(v is not None for v in views)
@@ -64,6 +75,32 @@ def refined(
     if posterior.fallback is not None:  # the prior exactly, in its own (diagonal) form
         return fused, record, views
     return FusedCode(posterior.mu, posterior.cov, fused.kept), record, views
+
+
+def estimates_pose(settings: ReconstructionSettings, views: Sequence[ObservedView | None]) -> bool:
+    """Whether the object's pose is estimated: asked (--pose estimate), or by default (auto) where the refinement
+    is on masks and no view has a camera."""
+    if settings.pose == "given" or settings.refine != "masks":
+        return False
+    return settings.pose == "estimate" or all(v is None for v in views)
+
+
+def pose_refined(decoder, fused, paths, views, settings, options, calibration, masks):
+    """The fused code and the object's pose refined together (`refine_pose_and_shape`): every view its own pose,
+    or one shared by all where --relative-poses gives their motion."""
+    unposed = unposed_views(paths, views, masks, settings.fov)
+    groups = (
+        relative_pose_groups(settings.relative_poses, len(unposed))
+        if settings.relative_poses
+        else PoseGroups.separate(len(unposed))
+    )
+    posterior = refine_pose_and_shape(decoder, fused.mu, fused.var, unposed, groups, options)
+    record = {"mode": settings.refine, "starts": 0, **posterior.record()}
+    record["views_with_camera"] = sum(v is not None for v in views)
+    record["calibration"] = None if calibration is None else {k: calibration.get(k) for k in APPLIED}
+    record["mu"] = posterior.mu.tolist()
+    posed = [replace(v, world_to_cam=c) for v, c in zip(unposed, posterior.cameras)]
+    return FusedCode(posterior.mu, posterior.cov, fused.kept), record, posed
 
 
 def r2n2_frame_of(predictor: Predictor) -> R2N2Frame | None:

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ushape.data.cameras import R2N2_FOV_DEG
 from ushape.reconstruction.export import DEFAULT_CMAP
 from ushape.refinement.defaults import REFINE_DEFAULTS
+
+POSE_CHOICES = ("auto", "estimate", "given")  # ReconstructionSettings.pose
 
 
 @dataclass(frozen=True)
@@ -26,6 +29,13 @@ class ReconstructionSettings:
     refine_size: int = REFINE_DEFAULTS["size"]  # rays per image side the refinement compares
     # prior draws scored beside the fused mean; the LM starts from the lowest energy
     refine_starts: int = REFINE_DEFAULTS["starts"]
+    # The object's pose for --refine masks (ushape.refinement.joint): "auto" estimates it where no view has a
+    # camera, "estimate" always (a known camera's K is kept, its pose hidden), "given" never.
+    pose: str = "auto"
+    fov: float = R2N2_FOV_DEG  # degrees across the larger side of an image with no camera: its K
+    # npz with world_to_cam [V, 4, 4] of the input views in any one frame (odometry, a turntable): only their
+    # motion relative to each other is used, and they share one estimated object pose
+    relative_poses: str | None = None
     # The decoder's: fp32, bf16, or auto (bf16 where faster: AMX CPUs, CUDA >= 8.0). Under bf16 the mesh
     # is searched in bf16 and placed by fp32 values; linearised and implicit stds use bf16 passes;
     # Monte Carlo stds stay fp32.

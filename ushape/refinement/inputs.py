@@ -26,6 +26,7 @@ from ushape.data.cameras import metadata_to_cameras, parse_metadata
 from ushape.data.layout import VIEWS_FILE, WorldIndex
 from ushape.data.real.shapenet_rendering import METADATA_FILE
 from ushape.errors import InputError, MissingInputError
+from ushape.refinement.joint import PLACEHOLDER_CAMERA, PoseGroups, default_intrinsics
 from ushape.refinement.views import ObservedView, camera_problem
 
 log = logging.getLogger(__name__)
@@ -187,6 +188,57 @@ def input_views(
             views.append(r2n2_render_view(image, mask, r2n2_frame))
         else:
             why = "the model knows no R2N2 frame" if numbered and (folder / METADATA_FILE).is_file() else "no camera"
-            log.warning("%s: %s (not a render of the world, no --cameras file): not refined", image, why)
+            log.warning("%s: %s (not a render of the world, no --cameras file)", image, why)
             views.append(None)
     return views
+
+
+def unposed_views(
+    images: Sequence[Path],
+    views: Sequence[ObservedView | None],
+    masks: Sequence[Path] | None,
+    fov_deg: float,
+) -> list[ObservedView]:
+    """Per image the view the pose estimation reads: its known K and mask where it has a camera (the pose is
+    estimated instead), else K from its size and `fov_deg` and its mask (the mask file, else its alpha).
+    world_to_cam is a placeholder the estimate replaces."""
+    out = []
+    for i, image in enumerate(images):
+        if views[i] is not None:
+            out.append(views[i])
+            continue
+        mask = image_mask(image) if masks is None else image_mask(masks[i], False)
+        if float(mask.mean()) >= 0.995:
+            raise InputError(
+                f"{image}: no mask and no alpha channel to tell the object from the background, so its pose cannot "
+                "be estimated: pass --masks MASK.png (white = object), one per image"
+            )
+        K = default_intrinsics(tuple(mask.shape), fov_deg)
+        out.append(ObservedView(K=K, world_to_cam=PLACEHOLDER_CAMERA, mask=mask))
+    return out
+
+
+def relative_pose_groups(path: str | Path, n_views: int) -> PoseGroups:
+    """One shared object pose for views whose cameras are known up to one unknown frame: an npz with world_to_cam
+    [V, 4, 4] (rigid) in input order, in any frame (only the motion between them is used)."""
+    path = Path(path)
+    if not path.is_file():
+        raise MissingInputError(f"relative poses file {path} does not exist")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            w2c = np.asarray(data["world_to_cam"], dtype=np.float64)
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as err:
+        raise InputError(
+            f"relative poses {path} is not an .npz with world_to_cam [V, 4, 4] ({type(err).__name__}): save it with "
+            "numpy.savez(path, world_to_cam=...)"
+        ) from err
+    if w2c.shape != (n_views, 4, 4):
+        raise InputError(
+            f"relative poses {path}: world_to_cam must be [{n_views}, 4, 4] (one per input image), got {w2c.shape}"
+        )
+    for i, m in enumerate(w2c):
+        r = m[:3, :3]
+        if not (np.isfinite(m).all() and np.allclose(r @ r.T, np.eye(3), atol=1e-3) and np.linalg.det(r) > 0):
+            raise InputError(f"relative poses {path}: world_to_cam[{i}] is not a rigid motion")
+    first = np.linalg.inv(w2c[0])
+    return PoseGroups.shared([m @ first for m in w2c])

@@ -48,6 +48,9 @@ from ushape.refinement.posterior import (
 )
 from ushape.refinement.views import ObservedView, screen_view
 
+# A valid camera in front of the object: what an unposed view carries until the estimate replaces it.
+PLACEHOLDER_CAMERA = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 2.0], [0, 0, 0, 1.0]])
+
 
 @dataclass(frozen=True)
 class PoseSettings:
@@ -378,7 +381,7 @@ def refine_pose_and_shape(
     if len(groups.group) != len(views):
         raise ValueError(f"{len(views)} views but {len(groups.group)} group entries")
     for i, v in enumerate(views):
-        screened = screen_view(replace(v, world_to_cam=_FRONT), use_depth=False)
+        screened = screen_view(replace(v, world_to_cam=PLACEHOLDER_CAMERA), use_depth=False)
         if screened.view is None:
             raise ValueError(f"view {i}: {screened.fallback}: a pose needs a mask that outlines the object")
     with frozen(decoder):
@@ -394,9 +397,6 @@ def refine_pose_and_shape(
                 ]
             )
         return _search(decoder, mu, var, views, groups, settings, pose_settings, starts)
-
-
-_FRONT = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 2.0], [0, 0, 0, 1.0]])  # a valid camera for screening
 
 
 def _search(decoder, mu, var, views, groups, settings, pose_settings, starts) -> PosedPosterior:
