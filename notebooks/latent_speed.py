@@ -59,7 +59,9 @@ def main() -> None:
         rows.append(row)
         print(f"{iterations} steps x {per_step} samples: {seconds:.2f} s a code, IoU {row['iou']:.3f}")
     if args.out:
-        args.out.write_text(json.dumps({"threads": torch.get_num_threads(), "shapes": len(ids), "rows": rows}, indent=1))
+        args.out.write_text(
+            json.dumps({"threads": torch.get_num_threads(), "shapes": len(ids), "rows": rows}, indent=1)
+        )
 
 
 if __name__ == "__main__":

@@ -6,7 +6,8 @@
 MODEL is an encoder run folder or `pretrained:<name>`, opened as reconstruct.py opens it. Per test shape and n
 views (our renders, spread around the orbit): the fused code refined on the masks with the true cameras
 (reconstruct.py's --refine masks) and with the cameras hidden (`refine_pose_and_shape`: K kept, the object's
-pose in the first camera estimated; for n > 1 the views' motion from the first is given, as odometry would).
+pose in the first camera estimated; for n > 1 the views' motion from the first is given, as odometry would;
+the hypotheses from the model's viewpoint head where it has one, unless --no-viewpoint).
 Kept: the rotation error of the estimate and of its runner-up, the pose's std, the Mahalanobis distance of the
 rotation error, the seconds of each and the IoU of each against R2N2's voxels (+0.4 voxel). Resumable.
 """
@@ -44,12 +45,12 @@ def iou(decoder, code, voxels, frame) -> float:
     return voxel_iou(numpy_sdf(code_sdf_fn(decoder, code)), voxels, side, centre, scale, PROTOCOL_LEVEL)
 
 
-def pose_row(decoder, fused, views, settings, pose_settings) -> dict:
+def pose_row(decoder, fused, views, settings, pose_settings, azimuth_logp=None) -> dict:
     truth = Pose.from_world_to_cam(views[0].world_to_cam)
     first = np.linalg.inv(views[0].world_to_cam)
     groups = PoseGroups.shared([v.world_to_cam @ first for v in views])
     start = time.perf_counter()
-    post = refine_pose_and_shape(decoder, fused.mu, fused.var, views, groups, settings, pose_settings)
+    post = refine_pose_and_shape(decoder, fused.mu, fused.var, views, groups, settings, pose_settings, azimuth_logp)
     seconds = time.perf_counter() - start
     est, rec = post.poses[0], post.pose_record(0)
     omega = log_so3(est.R.T @ truth.R)  # the error in the state's own rotation coordinates
@@ -91,7 +92,8 @@ def shape_rows(args, predictor, fusion, world, shape_id, done) -> list[dict]:
         start = time.perf_counter()
         known = refine(decoder, fused.mu, fused.var, views, settings)
         known_seconds = time.perf_counter() - start
-        est = pose_row(decoder, fused, views, settings, args.pose_settings)
+        logp = predictor.azimuth_log_probs(images[chosen]) if args.viewpoint else None
+        est = pose_row(decoder, fused, views, settings, args.pose_settings, None if logp is None else list(logp))
         code = est.pop("code")
         rows.append({
             "shape": shape_id, "views": n, "chosen": chosen,
@@ -144,6 +146,12 @@ def main() -> None:
     parser.add_argument("--views", type=int, nargs="+", default=[1, 3])
     parser.add_argument("--size", type=int, default=32, help="rays per image side (reconstruct.py's --refine-size)")
     parser.add_argument("--summary", type=Path, default=None)
+    parser.add_argument(
+        "--no-viewpoint",
+        dest="viewpoint",
+        action="store_false",
+        help="ignore the model's viewpoint head: hypotheses from the masks alone",
+    )
     args = parser.parse_args()
     if args.summary is not None:
         print(json.dumps(summary(args.summary), indent=1))

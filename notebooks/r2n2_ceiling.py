@@ -60,7 +60,11 @@ def main() -> None:
         codes = load_codes(args.decoder_dir / codes_file(split))
         ids = world.shape_ids(split)[: args.shapes]
         rows = [bound_and_ceiling(world, decoder, codes, s) for s in ids]
-        results[split] = {"ids": ids, "bound": np.stack([b for b, _ in rows]), "ceiling": np.stack([c for _, c in rows])}
+        results[split] = {
+            "ids": ids,
+            "bound": np.stack([b for b, _ in rows]),
+            "ceiling": np.stack([c for _, c in rows]),
+        }
     best = int(np.argmax(results["val"]["bound"].mean(axis=0)))
     level = float(LEVELS[best])
     report = {"decoder_dir": str(args.decoder_dir), "level_voxels": level, "levels": [float(v) for v in LEVELS]}

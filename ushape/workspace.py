@@ -7,6 +7,7 @@ outputs/runs/<date>/<time>_<stage>_<category>[_<loss>]/    one `python train.py`
     checkpoints/last.ckpt    the newest epoch, rewritten every epoch (what a resume starts from)
     temperature.json         stage 2: the variance temperature fitted on val (reconstruct.py --fit-temperature)
     refinement_calibration.json   the refinement's calibration (reconstruct.py --fit-refinement)
+    viewpoint.pt             the camera-azimuth head on the frozen features (reconstruct.py --fit-viewpoint)
     meshes/scores.json       the training demo's reconstructions and their scores
 outputs/multirun/<sweep>/<job>/                           the same, one folder per sweep job
 outputs/decoders/<category>-<hash>/                       one stage-1 decoder
@@ -39,6 +40,7 @@ LAST_FILE = "last.ckpt"
 BEST_FILE = f"{BEST_NAME}.ckpt"
 TEMPERATURE_FILE = "temperature.json"
 CALIBRATION_FILE = "refinement_calibration.json"
+VIEWPOINT_FILE = "viewpoint.pt"
 SCORES_FILE = "scores.json"
 
 # A stage-1 decoder's folder.

@@ -179,3 +179,23 @@ def test_pose_estimation_says_what_it_needs():
     with pytest.raises(ValueError, match="masks alone"):
         refine_pose_and_shape(Ball(), torch.zeros(1), torch.ones(1), [view], PoseGroups.separate(1),
                               refine_settings("depth"))  # fmt: skip
+
+
+def test_what_the_image_says_of_its_azimuth_breaks_the_half_turn_tie(box_views):
+    """The same box with a viewpoint head's distribution peaked at the true azimuth: the half turn, equal for the
+    masks, now costs its -log p, so the pose is the true one and no longer ambiguous."""
+    from ushape.encoder.viewpoint import angular_difference, camera_azimuth_elevation
+
+    settings = refine_settings("masks", size=64)
+    az, el, d, view = box_views[2]
+    truth = Pose.from_world_to_cam(view.world_to_cam)
+    true_azimuth, _ = camera_azimuth_elevation(view.world_to_cam)
+    centres = torch.arange(24, dtype=torch.float64) * 15.0
+    logp = torch.log_softmax(-((angular_difference(centres, torch.tensor(true_azimuth)) / 15.0) ** 2), 0)
+    post = refine_pose_and_shape(Box(), torch.zeros(3), torch.full((3,), 1e-4), [view], PoseGroups.separate(1),
+                                 settings, azimuth_logp=[logp])  # fmt: skip
+    record = post.pose_record(0)
+    assert not record["ambiguous"], record["runner_up"]
+    assert record["runner_up"] is not None and record["runner_up"]["energy_gap"] > 10.0
+    # the box's half turns about x and z (upside down) are not among the upright hypotheses: no symmetry to forgive
+    assert rotation_angle_deg(post.poses[0].R, truth.R) < 8.0

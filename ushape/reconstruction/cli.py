@@ -6,6 +6,7 @@
         [--refine masks|depth [--cameras CAMERAS.npz] [--masks MASK ...] [--refine-starts 8]] ...
     python reconstruct.py --fit-temperature [--run RUN | --checkpoint CKPT]
     python reconstruct.py --fit-refinement masks|depth [--run RUN | --checkpoint CKPT] [--refine-size 24]
+    python reconstruct.py --fit-viewpoint [--run RUN | --checkpoint CKPT] [--viewpoint-shapes 1000]
         [--fit-shapes 20]
 
 Without --run/--checkpoint the newest encoder run under ./outputs/runs is used. The fusion rule is
@@ -40,6 +41,7 @@ from ushape.reconstruction.pretrained import PREFIX, available_models, open_mode
 from ushape.reconstruction.refine_calibration import FIT_SHAPES, fit_and_store_refinement_calibration
 from ushape.reconstruction.settings import POSE_CHOICES, ReconstructionSettings
 from ushape.reconstruction.temperature_store import fit_and_store_temperature
+from ushape.reconstruction.viewpoint_store import fit_and_store_viewpoint
 from ushape.refinement import MODES as REFINE_MODES
 from ushape.refinement.inputs import input_views
 from ushape.workspace import CONFIG_DIR
@@ -97,6 +99,18 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         default=FIT_SHAPES,
         help="with --fit-refinement: how many val shapes to refine and fit on (the first ones; all where fewer)",
+    )
+    parser.add_argument(
+        "--fit-viewpoint",
+        action="store_true",
+        help="fit the camera-azimuth head on the run's train renders (scored on val) and store viewpoint.pt, which "
+        "the pose estimation of --refine masks then starts from (docs/pose.md)",
+    )
+    parser.add_argument(
+        "--viewpoint-shapes",
+        type=int,
+        default=None,
+        help="with --fit-viewpoint: how many train shapes' renders to fit on (default: all)",
     )
     parser.add_argument("--temperature", action="store_true", help="apply the stored temperature")
     parser.add_argument(
@@ -252,6 +266,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.fit_temperature:
             predictor = predictor_of(args, temperature=False)
             record = fit_and_store_temperature(predictor)
+            print(json.dumps(record, indent=2))
+            return 0
+        if args.fit_viewpoint:
+            record = fit_and_store_viewpoint(predictor_of(args, temperature=False), args.viewpoint_shapes)
             print(json.dumps(record, indent=2))
             return 0
         if args.fit_refinement:

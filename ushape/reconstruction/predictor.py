@@ -41,6 +41,7 @@ from ushape.workspace import (
     RUN_SUMMARY,
     RUNS_DIR,
     TEMPERATURE_FILE,
+    VIEWPOINT_FILE,
     relocated,
 )
 
@@ -189,6 +190,16 @@ class Predictor:
     # the run's world tells (`refinement.inputs.typical_r2n2_frame`), a shipped model's model.json says
     r2n2_frame: tuple | None = None
     model_name: str | None = None  # the shipped model's name (ushape/pretrained/<name>); None: a trained run
+    # The camera-azimuth head stored beside the checkpoint (reconstruct.py --fit-viewpoint); None: not fitted
+    viewpoint: nn.Module | None = None
+
+    @torch.no_grad()
+    def azimuth_log_probs(self, images: Tensor) -> Tensor | None:
+        """log p(camera azimuth bin) [V, bins] of each image (`ushape.encoder.viewpoint`); None without a head."""
+        if self.viewpoint is None:
+            return None
+        self.model.eval()
+        return self.viewpoint.log_probs(self.model.encoder.features(images.float()))
 
     @property
     def decoder(self) -> nn.Module:
@@ -401,4 +412,13 @@ def load_predictor(
         sdf_temperature=sdf_t,
         mask_mode=mask_mode,
         world=world,
+        viewpoint=stored_viewpoint(checkpoint),
     )
+
+
+def stored_viewpoint(checkpoint: str | Path) -> nn.Module | None:
+    """The camera-azimuth head beside a checkpoint (reconstruct.py --fit-viewpoint), or None."""
+    from ushape.encoder.viewpoint import load_viewpoint_head
+
+    path = Path(checkpoint).parent / VIEWPOINT_FILE
+    return load_viewpoint_head(path) if path.is_file() else None

@@ -41,11 +41,20 @@ from ushape.reconstruction.predictor import (
     read_temperatures,
     resolve_checkpoint,
     run_config,
+    stored_viewpoint,
     trained_decoder,
 )
 from ushape.reconstruction.refine_calibration import CALIBRATION_FILE
 from ushape.reconstruction.refined_code import r2n2_frame_of
-from ushape.workspace import CARD_FILE, DECODER_DIR, ENCODER_FILE, IDENTITY_FILE, MODEL_FILE, SPLITS_FILE
+from ushape.workspace import (
+    CARD_FILE,
+    DECODER_DIR,
+    ENCODER_FILE,
+    IDENTITY_FILE,
+    MODEL_FILE,
+    SPLITS_FILE,
+    VIEWPOINT_FILE,
+)
 
 log = logging.getLogger(__name__)
 PRETRAINED_DIR = Path(__file__).resolve().parents[1] / "pretrained"
@@ -131,6 +140,7 @@ def load_model_folder(folder: Path, temperature: bool = True) -> Predictor:
         world=None,
         r2n2_frame=frame_from_record(record.get("r2n2_frame")),
         model_name=str(record.get("name", folder.name)),
+        viewpoint=stored_viewpoint(folder / ENCODER_FILE),
     )
 
 
@@ -184,7 +194,7 @@ def export_pretrained(run: str | Path, name: str, out_root: str | Path = PRETRAI
         {"hyper_parameters": hparams, "state_dict": state, "backbone_from_package": not keep_backbone},
         staging / ENCODER_FILE,
     )
-    for fit in (TEMPERATURE_FILE, CALIBRATION_FILE):
+    for fit in (TEMPERATURE_FILE, CALIBRATION_FILE, VIEWPOINT_FILE):
         if (checkpoint.parent / fit).is_file():
             shutil.copy2(checkpoint.parent / fit, staging / fit)
     image_size, mask_mode = input_settings(blob, run_config(run_dir))

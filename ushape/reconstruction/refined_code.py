@@ -40,6 +40,7 @@ def refined(
     calibration: dict[str, Any] | None = None,  # --fit-refinement's fit for this mode (None: none)
     r2n2_frame: R2N2Frame | None = None,  # R2N2's frame in the model's, for R2N2 renders' cameras
     masks: Sequence[Path] | None = None,  # the mask files of `paths` (pose estimation reads them)
+    azimuth_logp: torch.Tensor | None = None,  # [V, bins] per path: the viewpoint head's (pose estimation)
 ) -> tuple[FusedCode, dict[str, Any], list[ObservedView]]:
     """The fused code refined on the views (FusedCode with var the full covariance [D, D]), its record and the
     views it was refined on; with a calibration, the posterior at its information scale s, and the record
@@ -65,7 +66,7 @@ def refined(
         settings.refine, settings.refine_size, information_scale=scale, starts=settings.refine_starts
     )
     if estimates_pose(settings, views):
-        return pose_refined(decoder, fused, paths, views, settings, options, calibration, masks)
+        return pose_refined(decoder, fused, paths, views, settings, options, calibration, masks, azimuth_logp)
     posterior = refine(decoder, fused.mu, fused.var, views, options)
     record = {"mode": settings.refine, "starts": settings.refine_starts, **posterior.record()}
     record["views_with_camera"] = sum(v is not None for v in views)
@@ -85,17 +86,20 @@ def estimates_pose(settings: ReconstructionSettings, views: Sequence[ObservedVie
     return settings.pose == "estimate" or all(v is None for v in views)
 
 
-def pose_refined(decoder, fused, paths, views, settings, options, calibration, masks):
+def pose_refined(decoder, fused, paths, views, settings, options, calibration, masks, azimuth_logp=None):
     """The fused code and the object's pose refined together (`refine_pose_and_shape`): every view its own pose,
-    or one shared by all where --relative-poses gives their motion."""
+    or one shared by all where --relative-poses gives their motion; the hypotheses start where the viewpoint head
+    (azimuth_logp [V, bins]) says the cameras stood, where the model has one."""
     unposed = unposed_views(paths, views, masks, settings.fov)
     groups = (
         relative_pose_groups(settings.relative_poses, len(unposed))
         if settings.relative_poses
         else PoseGroups.separate(len(unposed))
     )
-    posterior = refine_pose_and_shape(decoder, fused.mu, fused.var, unposed, groups, options)
+    logps = None if azimuth_logp is None else list(azimuth_logp)
+    posterior = refine_pose_and_shape(decoder, fused.mu, fused.var, unposed, groups, options, azimuth_logp=logps)
     record = {"mode": settings.refine, "starts": 0, **posterior.record()}
+    record["pose"]["viewpoint_head"] = azimuth_logp is not None
     record["views_with_camera"] = sum(v is not None for v in views)
     record["calibration"] = None if calibration is None else {k: calibration.get(k) for k in APPLIED}
     record["mu"] = posterior.mu.tolist()

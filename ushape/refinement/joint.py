@@ -37,7 +37,8 @@ from torch import Tensor
 
 from ushape.data.cameras import R2N2_FOV_DEG, look_at_extrinsics, orbit_position
 from ushape.decoder.query import frozen
-from ushape.refinement.observation import Residuals, code_functions, code_grid, residuals
+from ushape.encoder.viewpoint import camera_azimuth_elevation
+from ushape.refinement.observation import ObservationSettings, Residuals, code_functions, code_grid, residuals
 from ushape.refinement.pose import Pose, point_jacobian, rotation_angle_deg, scale_observable
 from ushape.refinement.posterior import (
     Posterior,
@@ -65,12 +66,18 @@ class PoseSettings:
     # Silhouette sharpness per LM stage, x the observation's tau, widest first: a pose far off has silhouette rows
     # only where a wide sigmoid reaches. Screening runs at the first; the joint runs go through all of them.
     tau_schedule: tuple[float, ...] = (8.0, 4.0, 2.0, 1.0)
-    stage_iterations: int = 8  # joint LM steps at most per sharpness
+    stage_iterations: int = 8  # LM steps at most per sharpness
+    # ... of which the last this many move the code with the pose (each code step builds a new SDF grid; a pose
+    # step reuses it)
+    code_stages: int = 2
     rotation_prior_deg: float = 60.0  # the prior's std about each hypothesis, per axis
     translation_prior: float = 1.0  # ... in object units
     scale_prior: float = 0.15  # ... of the log scale (where a baseline makes it observable)
     distinct_deg: float = 30.0  # a runner-up is a pose at least this far from the winner
     ambiguous_gap: float = 3.0  # a runner-up within this energy of the winner: ambiguous
+    # With a viewpoint head: the azimuth bins within this much -log p of the image's most likely one start
+    # hypotheses (at most `azimuths` of them), with the best one's half turn
+    appearance_window: float = 4.0
 
     def precision(self, dofs: int) -> Tensor:  # [dofs, dofs] float64
         stds = [math.radians(self.rotation_prior_deg)] * 3 + [self.translation_prior] * 3 + [self.scale_prior]
@@ -149,6 +156,20 @@ def default_intrinsics(image_hw: tuple[int, int], fov_deg: float) -> np.ndarray:
 # ---- the state's energy and Jacobian -------------------------------------------------------------------------
 
 
+class GridCache:
+    """The SDF grid of the last code asked for (`observation.code_grid`): steps that move only the poses, and every
+    hypothesis screened at the fused code, build it once."""
+
+    def __init__(self) -> None:
+        self.z: Tensor | None = None
+        self.grid: Any = None
+
+    def get(self, decoder: torch.nn.Module, z: Tensor, obs: ObservationSettings) -> Any:
+        if self.z is None or not torch.equal(self.z, z):
+            self.z, self.grid = z.clone(), code_grid(decoder, z, obs)
+        return self.grid
+
+
 @dataclass
 class State:
     z: Tensor  # [D] float64
@@ -158,8 +179,21 @@ class State:
 class Problem:
     """One joint refinement: the prior, the views and their groups, and the pose priors about the hypotheses."""
 
-    def __init__(self, decoder, mu, var, views, groups, settings, pose_settings, hypotheses, code_precision=None):
+    def __init__(
+        self,
+        decoder,
+        mu,
+        var,
+        views,
+        groups,
+        settings,
+        pose_settings,
+        hypotheses,
+        code_precision=None,
+        azimuth_logp=None,
+    ):
         self.decoder, self.views, self.groups = decoder, list(views), groups
+        self.azimuth_logp = azimuth_logp  # per view: log p(azimuth bin) [bins] from the image, or None
         self.settings, self.pose_settings, self.obs = settings, pose_settings, settings.observation
         self.mu = mu.detach().double()
         self.code_precision = prior_precision(var) if code_precision is None else code_precision
@@ -169,7 +203,7 @@ class Problem:
         D = self.mu.shape[0]
         self.columns = [D + sum(self.dofs[:g]) for g in range(groups.count)]
         self.width = D + sum(self.dofs)
-        self._grid: tuple[Tensor, Any] | None = None
+        self.grids = GridCache()
 
     def posed(self, state: State) -> list[ObservedView]:
         return [
@@ -177,14 +211,18 @@ class Problem:
             for v, g, c in zip(self.views, self.groups.group, self.groups.cams_from_ref)
         ]
 
+    def appearance(self, state: State) -> float:
+        """sum over views of -log p(the azimuth bin the state's pose puts the camera in), relative to each view's
+        most likely bin: what the image says of the pose, beside the masks (0 without a viewpoint head)."""
+        return appearance_energy(state.poses, self.groups, self.azimuth_logp)
+
     def pose_errors(self, state: State) -> list[np.ndarray]:
         return [self.hypotheses[g].error(state.poses[g])[: self.dofs[g]] for g in range(self.groups.count)]
 
     def residuals(self, state: State) -> tuple[Residuals, Tensor]:
         z = state.z.float()
-        if self._grid is None or not torch.equal(self._grid[0], z):  # pose-only steps keep the code: one grid
-            self._grid = (z.clone(), code_grid(self.decoder, z, self.obs))
-        res = residuals(self.decoder, z, self.posed(state), self.obs, False, jacobian=False, grid=self._grid[1])
+        grid = self.grids.get(self.decoder, z, self.obs)
+        res = residuals(self.decoder, z, self.posed(state), self.obs, False, jacobian=False, grid=grid)
         return res, row_weights(res, self.settings)
 
     def energy(self, state: State, res: Residuals, w: Tensor) -> float:
@@ -251,17 +289,20 @@ def at_sharpness(problem: Problem, multiple: float) -> Problem:
         problem.pose_settings,
         problem.hypotheses,
         code_precision=problem.code_precision,
+        azimuth_logp=problem.azimuth_logp,
     )
-    stage._grid = problem._grid  # the SDF grid does not depend on the sharpness
+    stage.grids = problem.grids  # the SDF grid does not depend on the sharpness
     return stage
 
 
-def staged(problem: Problem, state: State, iterations: int, code_free: bool, schedule: Sequence[float]):
-    """`levenberg_marquardt` at each sharpness of the schedule in turn, each from the last's result: (the final
-    stage's problem, state, residuals, weights, J, energy, steps in all)."""
+def staged(problem: Problem, state: State, iterations: int, code_stages: int, schedule: Sequence[float]):
+    """`levenberg_marquardt` at each sharpness of the schedule in turn, each from the last's result, the code free
+    in the last `code_stages` of them (the poses alone before): (the final stage's problem, state, residuals,
+    weights, J, energy, steps in all)."""
     total = 0
-    for multiple in schedule:
+    for k, multiple in enumerate(schedule):
         stage = at_sharpness(problem, multiple)
+        code_free = k >= len(schedule) - code_stages
         state, res, w, J, e, steps = levenberg_marquardt(stage, state, iterations, code_free)
         total += steps
     return stage, state, res, w, J, e, total
@@ -350,12 +391,54 @@ def placed_hypothesis(
     return pose
 
 
-def hypothesis_rotations(settings: PoseSettings, cam_from_ref: np.ndarray) -> list[tuple[float, np.ndarray]]:
-    """(azimuth, R [3, 3]): the object's rotation into the reference frame as seen from `azimuths` cameras around
-    it at `elevation`, for a view at cam_from_ref."""
+def appearance_energy(poses: Sequence[Pose], groups: PoseGroups, azimuth_logp: Sequence[Tensor | None] | None) -> float:
+    """sum over views of -(log p(bin of the camera's azimuth under its group's pose) - max log p)."""
+    if azimuth_logp is None:
+        return 0.0
+    total = 0.0
+    for i, logp in enumerate(azimuth_logp):
+        if logp is None:
+            continue
+        camera = poses[groups.group[i]].object_camera(groups.cams_from_ref[i])
+        azimuth, _ = camera_azimuth_elevation(camera)
+        k = int(round(azimuth / (360.0 / logp.shape[0]))) % logp.shape[0]
+        total += float(logp.max() - logp[k])
+    return total
+
+
+def hypothesis_azimuths(settings: PoseSettings, bins: int | None) -> list[float]:
+    """The azimuths the hypotheses start from: `azimuths` evenly spaced, or every bin of a viewpoint head."""
+    count = bins or settings.azimuths
+    return [360.0 * k / count for k in range(count)]
+
+
+def likely_starts(starts, g, groups, azimuth_logp, settings: PoseSettings) -> list:
+    """Group g's starts that the images allow: at most `azimuths` of lowest appearance energy within
+    `appearance_window` of the best, and the best's half turn (so a front / back runner-up is weighed)."""
+
+    def energy(start) -> float:
+        poses = [start[1]] * groups.count  # only group g's views are scored
+        members = groups.members(g)
+        logps = [azimuth_logp[i] if i in members else None for i in range(len(azimuth_logp))]
+        return appearance_energy(poses, groups, logps)
+
+    scored = sorted(((energy(s), s) for s in starts), key=lambda x: x[0])
+    best_energy, best = scored[0]
+    kept = [s for e, s in scored if e <= best_energy + settings.appearance_window][: settings.azimuths]
+    turn = (best[0] + 180.0) % 360.0
+    half_turn = min(starts, key=lambda s: abs(((s[0] - turn) + 180.0) % 360.0 - 180.0))
+    if all(half_turn is not s for s in kept):
+        kept.append(half_turn)
+    return kept
+
+
+def hypothesis_rotations(
+    settings: PoseSettings, cam_from_ref: np.ndarray, bins: int | None = None
+) -> list[tuple[float, np.ndarray]]:
+    """(azimuth, R [3, 3]): the object's rotation into the reference frame as seen from cameras around it at
+    `elevation` (`hypothesis_azimuths`), for a view at cam_from_ref."""
     out = []
-    for k in range(settings.azimuths):
-        azimuth = 360.0 * k / settings.azimuths
+    for azimuth in hypothesis_azimuths(settings, bins):
         eye = orbit_position(azimuth, settings.elevation, 1.0)
         cam_from_object = look_at_extrinsics(eye, np.zeros(3))[:3, :3]
         out.append((azimuth, cam_from_ref[:3, :3].T @ cam_from_object))
@@ -373,9 +456,11 @@ def refine_pose_and_shape(
     groups: PoseGroups,
     settings: RefineSettings = RefineSettings(),
     pose_settings: PoseSettings = PoseSettings(),
+    azimuth_logp: Sequence[Tensor | None] | None = None,  # per view: log p(azimuth bin) [bins] (viewpoint head)
 ) -> PosedPosterior:
     """MAP (pose, code) and the Laplace posterior over both, from the views' masks, with no camera in the object's
-    frame (module docstring). Every group needs at least one view whose mask shows the object."""
+    frame (module docstring), and from what the images say of their azimuth where a viewpoint head gave
+    azimuth_logp. Every group needs at least one view whose mask shows the object."""
     if settings.mode != "masks":
         raise ValueError("the pose is estimated from masks alone: use mode 'masks' (depth needs known cameras)")
     if len(groups.group) != len(views):
@@ -387,24 +472,30 @@ def refine_pose_and_shape(
     with frozen(decoder):
         points = interior_points(decoder, mu.detach()).numpy().astype(np.float64)
         starts = []
+        if azimuth_logp is not None and len(azimuth_logp) != len(views):
+            raise ValueError(f"{len(views)} views but {len(azimuth_logp)} azimuth distributions")
         for g in range(groups.count):
             first = groups.members(g)[0]
             cam = np.asarray(groups.cams_from_ref[first], dtype=np.float64)
-            starts.append(
-                [
-                    (azimuth, placed_hypothesis(R, views[first], cam, points, pose_settings.distance))
-                    for azimuth, R in hypothesis_rotations(pose_settings, cam)
-                ]
-            )
-        return _search(decoder, mu, var, views, groups, settings, pose_settings, starts)
+            logp = None if azimuth_logp is None else azimuth_logp[first]
+            bins = None if logp is None else int(logp.shape[0])
+            group_starts = [
+                (azimuth, placed_hypothesis(R, views[first], cam, points, pose_settings.distance))
+                for azimuth, R in hypothesis_rotations(pose_settings, cam, bins)
+            ]
+            if bins is not None:
+                group_starts = likely_starts(group_starts, g, groups, azimuth_logp, pose_settings)
+            starts.append(group_starts)
+        return _search(decoder, mu, var, views, groups, settings, pose_settings, starts, azimuth_logp)
 
 
-def _search(decoder, mu, var, views, groups, settings, pose_settings, starts) -> PosedPosterior:
+def _search(decoder, mu, var, views, groups, settings, pose_settings, starts, azimuth_logp=None) -> PosedPosterior:
     """Screen every group's hypotheses at the fused code (the other groups at their best so far), run the joint LM
     from the best of all groups and from each group's distinct alternates, and return the lowest-energy run's
     Laplace posterior with each group's runner-up."""
     best = [h[0][1] for h in starts]
     schedule = pose_settings.tau_schedule or (1.0,)
+    grids = GridCache()  # one grid of the fused code for every hypothesis screened
     screened: list[list[dict[str, Any]]] = []
     mu64 = mu.detach().double()
     for g in range(groups.count):
@@ -412,10 +503,12 @@ def _search(decoder, mu, var, views, groups, settings, pose_settings, starts) ->
         for azimuth, hyp in starts[g]:
             hyps = list(best)
             hyps[g] = hyp
-            problem = Problem(decoder, mu, var, views, groups, settings, pose_settings, hyps)
+            problem = Problem(decoder, mu, var, views, groups, settings, pose_settings, hyps, azimuth_logp=azimuth_logp)
+            problem.grids = grids
             _, state, *_, e, _ = staged(
-                problem, State(mu64.clone(), hyps), pose_settings.screen_iterations, False, schedule[:1]
+                problem, State(mu64.clone(), hyps), pose_settings.screen_iterations, 0, schedule[:1]
             )
+            e += problem.appearance(state)
             rows.append({"azimuth": azimuth, "screen_energy": e, "pose": state.poses[g], "start": hyp})
         rows.sort(key=lambda r: r["screen_energy"])
         best[g] = rows[0]["pose"]
@@ -427,10 +520,26 @@ def _search(decoder, mu, var, views, groups, settings, pose_settings, starts) ->
     runs = []
     for plan in plans:
         rows = [screened[g][chosen[g][k]] for g, k in enumerate(plan)]
-        problem = Problem(decoder, mu, var, views, groups, settings, pose_settings, [r["start"] for r in rows])
-        problem, state, res, w, J, e, steps = staged(
-            problem, State(mu64.clone(), [r["pose"] for r in rows]), pose_settings.stage_iterations, True, schedule
+        problem = Problem(
+            decoder,
+            mu,
+            var,
+            views,
+            groups,
+            settings,
+            pose_settings,
+            [r["start"] for r in rows],
+            azimuth_logp=azimuth_logp,
         )
+        problem.grids = grids
+        problem, state, res, w, J, e, steps = staged(
+            problem,
+            State(mu64.clone(), [r["pose"] for r in rows]),
+            pose_settings.stage_iterations,
+            pose_settings.code_stages,
+            schedule,
+        )
+        e += problem.appearance(state)
         runs.append({"plan": plan, "energy": e, "problem": problem, "state": state, "fit": (res, w, J, steps)})
     winner = min(runs, key=lambda r: r["energy"])
     report = [_group_report(g, screened[g], chosen[g], runs, winner, pose_settings) for g in range(len(screened))]
