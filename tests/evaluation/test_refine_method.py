@@ -311,3 +311,19 @@ def test_starts_reach_the_settings_from_the_method_config_and_bad_counts_are_ref
     assert instantiate(config, starts=8).settings.starts == 8
     with pytest.raises(ValueError, match="starts"):
         R.RefineMethod("depth", starts=-1)
+
+
+def test_pose_estimated_rows_stand_beside_the_known_camera_rows(sphere_world, sphere_codes, tmp_path):
+    """`methods=[refine_masks, refine_masks_pose]`: the same views and crops, the second with the pose hidden; its
+    results are cached like the first's."""
+    from ushape.evaluation.pose_refine_method import PoseRefineMethod
+
+    methods = [R.RefineMethod("masks", **FAST), PoseRefineMethod("masks", pose={"azimuths": 2}, **FAST)]
+    result = _evaluate(sphere_world, sphere_codes, tmp_path, tmp_path / "cache", methods, ("single_view",))
+    cells = {r["encoder"]: r for r in result["summary"] if r["protocol"] == "single"}
+    known, posed = cells["es+refine_masks"], cells["es+refine_masks_pose"]
+    assert posed["n"] == known["n"] and posed["label"] == "Ours + refine (masks, pose estimated)"
+    assert posed["fallbacks"] == 0
+    assert list((tmp_path / "cache" / R.CACHE_FOLDER).glob("pose_*.pt"))
+    with pytest.raises(ValueError, match="set mode: masks"):
+        PoseRefineMethod("depth")

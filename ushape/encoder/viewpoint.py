@@ -116,13 +116,16 @@ def viewpoint_scores(head: ViewpointHead, features: Tensor, azimuths: Tensor) ->
 
 
 def save_viewpoint_head(head: ViewpointHead, path, scores: dict | None = None) -> None:
+    """The head, its layers' weights in fp16 (half the size a shipped model carries; the standardisation stays fp32),
+    with its held-out scores."""
     from ushape import atomic
 
-    atomic.torch_save({"config": head.config, "state_dict": head.state_dict(), "scores": scores or {}}, path)
+    state = {k: v.half() if k.startswith("net.") else v for k, v in head.state_dict().items()}
+    atomic.torch_save({"config": head.config, "state_dict": state, "scores": scores or {}}, path)
 
 
 def load_viewpoint_head(path) -> ViewpointHead:
     blob = torch.load(path, map_location="cpu", weights_only=False)
     head = ViewpointHead(**blob["config"])
-    head.load_state_dict(blob["state_dict"])
+    head.load_state_dict({k: v.float() for k, v in blob["state_dict"].items()})
     return head.eval()
