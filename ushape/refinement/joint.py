@@ -71,6 +71,8 @@ class PoseSettings:
     # step reuses it)
     code_stages: int = 2
     rotation_prior_deg: float = 60.0  # the prior's std about each hypothesis, per axis
+    # ... where a viewpoint head chose the hypotheses: its azimuth is within 15 degrees for 92 % of val chairs
+    rotation_prior_with_head_deg: float = 10.0
     translation_prior: float = 1.0  # ... in object units
     scale_prior: float = 0.15  # ... of the log scale (where a baseline makes it observable)
     distinct_deg: float = 30.0  # a runner-up is a pose at least this far from the winner
@@ -79,8 +81,9 @@ class PoseSettings:
     # hypotheses (at most `azimuths` of them), with the best one's half turn
     appearance_window: float = 4.0
 
-    def precision(self, dofs: int) -> Tensor:  # [dofs, dofs] float64
-        stds = [math.radians(self.rotation_prior_deg)] * 3 + [self.translation_prior] * 3 + [self.scale_prior]
+    def precision(self, dofs: int, with_head: bool = False) -> Tensor:  # [dofs, dofs] float64
+        rotation = self.rotation_prior_with_head_deg if with_head else self.rotation_prior_deg
+        stds = [math.radians(rotation)] * 3 + [self.translation_prior] * 3 + [self.scale_prior]
         return torch.diag(1.0 / torch.tensor(stds[:dofs], dtype=torch.float64) ** 2)
 
 
@@ -199,7 +202,9 @@ class Problem:
         self.code_precision = prior_precision(var) if code_precision is None else code_precision
         self.hypotheses = hypotheses  # [G] Pose: each pose prior's centre
         self.dofs = [groups.dofs(g) for g in range(groups.count)]
-        self.pose_precision = [pose_settings.precision(d) for d in self.dofs]
+        self.pose_precision = [
+            pose_settings.precision(d, self.has_head(g, azimuth_logp)) for g, d in enumerate(self.dofs)
+        ]
         D = self.mu.shape[0]
         self.columns = [D + sum(self.dofs[:g]) for g in range(groups.count)]
         self.width = D + sum(self.dofs)
@@ -210,6 +215,9 @@ class Problem:
             replace(v, world_to_cam=state.poses[g].object_camera(c))
             for v, g, c in zip(self.views, self.groups.group, self.groups.cams_from_ref)
         ]
+
+    def has_head(self, g: int, azimuth_logp) -> bool:
+        return azimuth_logp is not None and any(azimuth_logp[i] is not None for i in self.groups.members(g))
 
     def appearance(self, state: State) -> float:
         """sum over views of -log p(the azimuth bin the state's pose puts the camera in), relative to each view's
@@ -432,6 +440,36 @@ def likely_starts(starts, g, groups, azimuth_logp, settings: PoseSettings) -> li
     return kept
 
 
+def triangulated_centre(views: Sequence[ObservedView], cams_from_ref: Sequence[np.ndarray]) -> np.ndarray | None:
+    """The point [3] (reference frame) nearest, in least squares, to the rays through every view's mask-box centre;
+    None where the rays are near parallel (no baseline to triangulate with)."""
+    A, b = np.zeros((3, 3)), np.zeros(3)
+    for view, cam in zip(views, cams_from_ref):
+        u0, v0, u1, v1 = mask_box(view)
+        ray = np.linalg.solve(np.asarray(view.K, dtype=np.float64), [(u0 + u1) / 2.0, (v0 + v1) / 2.0, 1.0])
+        direction = cam[:3, :3].T @ ray
+        direction /= np.linalg.norm(direction)
+        centre = -cam[:3, :3].T @ cam[:3, 3]
+        P = np.eye(3) - np.outer(direction, direction)
+        A += P
+        b += P @ centre
+    if np.linalg.cond(A) > 1e6:
+        return None
+    return np.linalg.solve(A, b)
+
+
+def rescaled(pose: Pose, centre: np.ndarray | None, cam_from_ref: np.ndarray) -> Pose:
+    """The pose placed by one view moved to the triangulated centre and scaled so that view's silhouette keeps its
+    size (size / distance fixed): with a baseline, the object's size in the reference frame's units."""
+    if centre is None:
+        return pose
+    eye = -cam_from_ref[:3, :3].T @ cam_from_ref[:3, 3]
+    near, placed = np.linalg.norm(centre - eye), np.linalg.norm(pose.t - eye)
+    if (cam_from_ref[:3, :3] @ (centre - eye))[2] <= 0 or placed <= 0:  # behind the camera: keep the placement
+        return pose
+    return Pose(pose.R, centre.copy(), pose.scale * float(near / placed))
+
+
 def hypothesis_rotations(
     settings: PoseSettings, cam_from_ref: np.ndarray, bins: int | None = None
 ) -> list[tuple[float, np.ndarray]]:
@@ -479,8 +517,15 @@ def refine_pose_and_shape(
             cam = np.asarray(groups.cams_from_ref[first], dtype=np.float64)
             logp = None if azimuth_logp is None else azimuth_logp[first]
             bins = None if logp is None else int(logp.shape[0])
+            members = groups.members(g)
+            centre = None
+            if groups.dofs(g) == 7:  # a baseline: where the object is, and so its size in the reference's units
+                centre = triangulated_centre([views[i] for i in members], [groups.cams_from_ref[i] for i in members])
             group_starts = [
-                (azimuth, placed_hypothesis(R, views[first], cam, points, pose_settings.distance))
+                (
+                    azimuth,
+                    rescaled(placed_hypothesis(R, views[first], cam, points, pose_settings.distance), centre, cam),
+                )
                 for azimuth, R in hypothesis_rotations(pose_settings, cam, bins)
             ]
             if bins is not None:
