@@ -21,3 +21,14 @@ def test_the_views_show_the_code_and_both_rows_are_timed():
     rows = refine_rows(Sphere(), code, views=2, size=12, rays=12)
     assert [r.name for r in rows] == ["refine masks (2 views, 12 px)", "refine depth (2 views, 12 px)"]
     assert all(r.seconds > 0 and "fallback: None" in r.note for r in rows)
+
+
+def test_the_pose_rows_time_one_and_three_views_against_the_known_cameras():
+    from ushape.bench.refine import pose_rows
+
+    rows = pose_rows(Sphere(), torch.tensor([0.5, 0.0, 0.0]), views=3, size=12, rays=12)
+    assert [r.name for r in rows] == [
+        "refine masks, pose estimated (1 of 3 views, 12 px)",
+        "refine masks, pose estimated (3 of 3 views, 12 px)",
+    ]
+    assert all(r.seconds > 0 and "x the known cameras'" in r.note for r in rows)

@@ -25,7 +25,7 @@ from torch import nn
 from ushape.bench.contract import precision_rows
 from ushape.bench.depth import depth_rows, orbit_cameras
 from ushape.bench.fitted import fitted_decoder
-from ushape.bench.refine import refine_rows
+from ushape.bench.refine import pose_rows, refine_rows
 from ushape.bench.timing import Measurement, timed
 from ushape.decoder.artifacts import codes_file, load_codes, load_decoder
 from ushape.decoder.folded import fold_code
@@ -34,6 +34,7 @@ from ushape.fusion.rules import fuse_average, fuse_bayesian, fuse_bayesian_k
 from ushape.mesh.extraction import extract_mesh, marching_cubes
 from ushape.propagation.field import decode_field, narrow_band_field
 from ushape.propagation.mesh import grid_points, propagate, vertex_uncertainty
+from ushape.refinement.joint import PoseSettings
 from ushape.workspace import CONFIG_DIR
 
 
@@ -52,6 +53,7 @@ class BenchSettings:
     depth_var: float = 0.001  # per-dimension latent variance of their Gaussian
     refine_views: int = 12  # views of the refinement rows (0: skip them)
     refine_size: int = 64  # their pixels per side
+    pose_azimuths: int = 8  # starting azimuths of the pose-estimated refinement rows (0: skip them)
     precision: str = "fp32"  # what `precision: auto` resolved to on this machine (bench.py resolves it)
     precision_why: str = ""
     precision_rows: bool = True  # time the mesh with uncertainty in fp32, bf16 and auto, with the contract
@@ -211,6 +213,15 @@ def decoder_rows(decoder: nn.Module, code: torch.Tensor, settings: BenchSettings
         )
     if settings.refine_views > 0:
         rows += refine_rows(decoder, code, settings.refine_views, settings.refine_size, seed=settings.seed)
+        if settings.pose_azimuths > 0:
+            rows += pose_rows(
+                decoder,
+                code,
+                settings.refine_views,
+                settings.refine_size,
+                seed=settings.seed,
+                pose_settings=PoseSettings(azimuths=settings.pose_azimuths),
+            )
     return rows
 
 

@@ -1,4 +1,7 @@
-"""Wall-clock cost of refining one object's code on its views, to set beside extracting its mesh with uncertainty.
+"""Wall-clock cost of refining one object's code on its views, to set beside extracting its mesh with uncertainty,
+and of refining it with the object's pose hidden (pose and shape together, `ushape.refinement.joint`) from its
+first view and from its first three with their relative motion, each beside the known-camera refinement of the
+same views (the ratio in the note).
 
 The views: `views` cameras on the depth rows' orbit (`depth.orbit_cameras`) at `size` px. What they
 show is the benched code's own surface (the mean code's trace: hit = mask, its depth), and the
@@ -8,6 +11,7 @@ refinement compares `rays` rays per image side (reconstruct.py's --refine-size).
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -15,6 +19,7 @@ from ushape.bench.depth import orbit_cameras
 from ushape.bench.timing import Measurement, timed
 from ushape.propagation.depth_implicit import depth_uncertainty_implicit_views
 from ushape.refinement import ObservationSettings, ObservedView, RefineSettings, refine
+from ushape.refinement.joint import PoseGroups, PoseSettings, refine_pose_and_shape
 
 
 def code_views(decoder: nn.Module, code: Tensor, views: int, size: int) -> list[ObservedView]:  # code [D]
@@ -46,4 +51,36 @@ def refine_rows(
         seconds, post = timed(lambda: refine(decoder, prior_mu, prior_var, observed, settings), repeats)
         note = f"{post.iterations} iterations, {rays} rays per side, fallback: {post.fallback}"
         rows.append(Measurement(f"refine {mode} ({views} views, {size} px)", seconds, repeats, note=note))
+    return rows
+
+
+def pose_rows(
+    decoder: nn.Module,
+    code: Tensor,  # [D]
+    views: int = 12,
+    size: int = 64,
+    rays: int = 32,
+    seed: int = 0,
+    repeats: int = 1,
+    pose_settings: PoseSettings = PoseSettings(),
+) -> list[Measurement]:
+    """Rows "refine masks, pose estimated (<n> of <views> views, <size> px)" for n = 1 and 3, with the known-camera
+    refinement of the same views and the ratio between them in the note."""
+    observed = code_views(decoder, code, views, size)
+    prior_mu = code + 0.1 * torch.randn(code.shape, generator=torch.Generator().manual_seed(seed))
+    prior_var = torch.full_like(code, 0.01)
+    settings = RefineSettings(mode="masks", observation=ObservationSettings(size=rays))
+    rows = []
+    for n in (1, 3):
+        chosen = observed[:: max(1, len(observed) // n)][:n]
+        known, _ = timed(lambda: refine(decoder, prior_mu, prior_var, chosen, settings), repeats)
+        first = np.linalg.inv(chosen[0].world_to_cam)
+        groups = PoseGroups.shared([v.world_to_cam @ first for v in chosen])
+        seconds, post = timed(
+            lambda: refine_pose_and_shape(decoder, prior_mu, prior_var, chosen, groups, settings, pose_settings),
+            repeats,
+        )
+        note = f"{seconds / known:.1f}x the known cameras' {known:.2f} s; {post.iterations} final-stage iterations"
+        rows.append(Measurement(f"refine masks, pose estimated ({n} of {views} views, {size} px)", seconds, repeats,
+                                note=note))  # fmt: skip
     return rows
