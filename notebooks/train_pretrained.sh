@@ -7,7 +7,7 @@
 # one 2-thread job ~5): the r2n2 world (1,000 / 100 / 100 shapes, ~5 min), stage 1 (200 epochs of the
 # 4 x 256 decoder, ~45 min at 2 threads on an AMD EPYC), then stage 2 (the frozen-feature ES heads, and the
 # L2 heads of the FroDO* comparison on the same cached features), the ES run's temperature, shared-error
-# fusion and refinement calibration, and the export into ushape/pretrained/<category>/.
+# fusion, refinement calibration and camera-azimuth head, and the export into ushape/pretrained/<category>/.
 # Every step resumes where it stopped: rerun the same command. A stage-1 folder committed under
 # ushape/pretrained/<category>/decoder/ (decoder, codes, DONE) is copied into outputs/decoders/ first,
 # so a fresh machine goes on with stage 2 instead of training stage 1 again.
@@ -49,6 +49,7 @@ for category in "${categories[@]}"; do
   [[ -f $run/checkpoints/temperature.json ]] || .venv/bin/python reconstruct.py --fit-temperature --run "$run"
   [[ -f $run/checkpoints/refinement_calibration.json ]] ||
     .venv/bin/python reconstruct.py --fit-refinement masks --fit-shapes 20 --run "$run"
+  [[ -f $run/checkpoints/viewpoint.pt ]] || .venv/bin/python reconstruct.py --fit-viewpoint --run "$run"
   .venv/bin/python -c "import sys; from ushape.reconstruction.pretrained import export_pretrained as e
 print(e(sys.argv[1], sys.argv[2], category=sys.argv[2]))" "$run" "$category"
 done
