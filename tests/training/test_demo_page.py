@@ -14,7 +14,14 @@ def test_the_demo_writes_one_page_with_every_view_count_and_mode(tiny_run, tmp_p
     world = WorldIndex(root, "chairs", {s: read_split(root, s) for s in ("train", "val", "test")})
     out = write_demo_meshes(run, world, tmp_path / "meshes", resolution=24, split="test", refine="masks")
     page = (out / "report.html").read_text()
-    labels = ["1 view, fused", "1 view, refined", "3 views, fused", "3 views, refined"]
+    labels = [
+        "1 view, fused",
+        "1 view, refined",
+        "1 view, refined, pose estimated",
+        "3 views, fused",
+        "3 views, refined",
+    ]
     positions = [page.index(f'"label": "{label}"') for label in labels]
     assert positions == sorted(positions)  # one view first, fused before refined
     assert (out / "model-viewer-umd.min.js").is_file() and (out / "demo_colourbar.png").is_file()
+    assert '"rotation std (deg)"' in page and '"rotation error (deg)"' in page

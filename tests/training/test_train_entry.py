@@ -44,12 +44,12 @@ def test_sweep_over_losses_trains_one_decoder_and_two_encoders(tmp_path):
         assert hparams["optimizer"]["_target_"] == "torch.optim.AdamW"
         blob = torch.load(s["encoder_checkpoint"], map_location="cpu", weights_only=False)
         assert any(key.startswith("EarlyStopping") for key in blob["callbacks"]), list(blob["callbacks"])
-        # One val shape from its first view and from both views, each also refined on the views' masks;
-        # a 1-epoch encoder may give no surface.
+        # One val shape from its first view and from both views, each also refined on the views' masks, and the
+        # first view refined with its pose estimated; a 1-epoch encoder may give no surface.
         folders = sorted(p.name for p in Path(s["meshes"]).iterdir() if p.is_dir())
         assert sorted(row["name"] for row in s["demo"]) == folders
-        ends = ("_1view", "_1view_refined_masks", "_2views", "_2views_refined_masks")
-        assert len(folders) == 4 and all(f.endswith(e) for f, e in zip(folders, ends)), folders
+        ends = ("_1view", "_1view_refined_masks", "_1view_refined_masks_pose", "_2views", "_2views_refined_masks")
+        assert len(folders) == 5 and all(f.endswith(e) for f, e in zip(folders, ends)), folders
         # Each mesh scored against the ground truth, beside the shape's own stage-1 code.
         scores = json.loads((Path(s["meshes"]) / "scores.json").read_text())
         (shape_scores,) = scores.values()

@@ -381,20 +381,24 @@ def placed_hypothesis(
     the depth set by the boxes' sizes, then the offset by their centres (twice, the second to settle)."""
     K = np.asarray(view.K, dtype=np.float64)
     u0, v0, u1, v1 = mask_box(view)
-    pose = Pose(R, np.array([0.0, 0.0, distance]) - cam_from_ref[:3, 3] @ cam_from_ref[:3, :3], 1.0)
+    R_c, t_c = cam_from_ref[:3, :3], cam_from_ref[:3, 3]
+    pose = Pose(R, R_c.T @ (np.array([0.0, 0.0, distance]) - t_c), 1.0)
     for _ in range(2):
         cam = pose.object_camera(cam_from_ref)
         x = points @ cam[:3, :3].T + cam[:3, 3]
         x = x[x[:, 2] > 1e-3]
+        if x.shape[0] == 0:
+            break
         uv = (x @ K.T)[:, :2] / x[:, 2:3]
         (a0, b0), (a1, b1) = uv.min(0), uv.max(0)
-        size = max(a1 - a0, b1 - b0) / max(u1 - u0, v1 - v0)
-        depth = float(cam[2, 3]) * size
+        size = max(a1 - a0, b1 - b0, 1e-6) / max(u1 - u0, v1 - v0)
+        # the whole unit sphere (every shape of the decoder's frame) stays in front of the camera
+        depth = float(np.clip(float(cam[2, 3]) * size, 1.1, 50.0 * distance))
         centre = np.array([(u0 + u1) / 2.0 - K[0, 2], (v0 + v1) / 2.0 - K[1, 2]]) / np.array([K[0, 0], K[1, 1]])
         shift = np.array([(a0 + a1) / 2.0 - K[0, 2], (b0 + b1) / 2.0 - K[1, 2]]) / np.array([K[0, 0], K[1, 1]])
         centre_cam = np.array([*(centre - shift + cam[:2, 3] / cam[2, 3]) * depth, depth])
         # the object's origin at centre_cam in the view's camera -> in the reference frame
-        origin_ref = cam_from_ref[:3, :3].T @ (centre_cam * pose.scale - cam_from_ref[:3, 3])
+        origin_ref = R_c.T @ (centre_cam * pose.scale - t_c)
         pose = Pose(R, origin_ref, pose.scale)
     return pose
 

@@ -10,6 +10,8 @@ both coloured on the single view's scale so the two can be compared by eye:
     <run>/meshes/<shape id>_<N>views/
     <run>/meshes/<shape id>_1view_refined_<mode>/, ..._<N>views_refined_<mode>/   the same views, the fused
                                        code refined on their masks (refine "masks") or masks + depth ("depth")
+    <run>/meshes/<shape id>_1view_refined_masks_pose/   with refine "masks": the first view refined with its
+                                       camera hidden, the object's pose estimated with the shape (docs/pose.md)
     <run>/meshes/scores.json           each mesh's IoU / Chamfer against the ground truth, and those of
                                        the shape's own stage-1 code (what this decoder can do at best)
 
@@ -44,6 +46,7 @@ from ushape.reconstruction.pipeline import reconstruct
 from ushape.reconstruction.predictor import load_predictor
 from ushape.reconstruction.report_page import Scene, write_report
 from ushape.reconstruction.settings import ReconstructionSettings
+from ushape.refinement.pose import rotation_angle_deg
 from ushape.workspace import SCORES_FILE, SUMMARY_FILE
 
 log = logging.getLogger(__name__)
@@ -51,6 +54,9 @@ EMPTY_NOTE = "empty_surface.txt"
 
 OWN_CODE = "own_code"
 FusionRule = Callable[[Tensor, Tensor], FusedCode]  # (mu [V, D], var [V, D]) -> fused Gaussian
+
+
+POSE_CASE = "masks_pose"  # the folder suffix of the case refined with its camera hidden
 
 
 def write_demo_meshes(
@@ -79,11 +85,16 @@ def write_demo_meshes(
         views = view_files(world.root, shape_id)
         settings = ReconstructionSettings(resolution=resolution, depth_size=48)
         modes = (None,) if refine is None else (None, refine)
-        for inputs, mode in [(inputs, mode) for inputs in (views[:1], views) for mode in modes]:
+        cases = [(inputs, mode) for inputs in (views[:1], views) for mode in modes]
+        if refine == "masks":  # and one view with its camera hidden: the pose estimated with the shape
+            cases.insert(2, (views[:1], POSE_CASE))
+        for inputs, mode in cases:
             folder = out_dir / f"{shape_id}_{len(inputs)}view{'s' if len(inputs) > 1 else ''}"
             folder = folder.with_name(f"{folder.name}_refined_{mode}") if mode else folder
             try:
                 mode_settings = dataclasses.replace(settings, refine=mode)
+                if mode == POSE_CASE:
+                    mode_settings = dataclasses.replace(settings, refine="masks", pose="estimate")
                 summary = reconstruct(predictor, inputs, fusion, folder, mode_settings)
             except EmptySurfaceError as err:
                 log.warning("no mesh for %s from %d view(s): %s", shape_id, len(inputs), err)
@@ -120,6 +131,14 @@ def demo_page(out_dir: Path, world: WorldIndex, shape_id: str, scores: dict[str,
         label = f"{n} view{'s' if n > 1 else ''}, " + ("refined" if "refined" in folder.name else "fused")
         figures = {"latent trace (fused)": summary["fused"]["trace_var"], **scores.get(folder.name, {})}
         cameras = [(Ks[i], w2cs[i], (side, side)) for i in range(min(n, len(Ks)))]
+        pose = (summary.get("refinement") or {}).get("pose")
+        if pose:  # the cameras where the estimate put them, and how sure it is
+            label += ", pose estimated"
+            cameras = [(Ks[i], np.asarray(c), (side, side)) for i, c in enumerate(pose["cameras"])]
+            figures["rotation std (deg)"] = pose["groups"][0]["rotation_std_deg"]
+            figures["rotation error (deg)"] = rotation_angle_deg(
+                np.asarray(pose["cameras"][0])[:3, :3], w2cs[0][:3, :3]
+            )
         scenes.append(
             Scene(label, coloured_mesh(mesh, read_ply_std(folder / "mesh.ply"), top, DEFAULT_CMAP), cameras, figures)
         )
