@@ -33,10 +33,11 @@ from ushape.decoder.query import code_sdf_fn  # noqa: E402
 from ushape.encoder.datamodule import view_files  # noqa: E402
 from ushape.metrics.voxel_iou import PROTOCOL_LEVEL, numpy_sdf, voxel_iou  # noqa: E402
 from ushape.reconstruction.calibrated_fusion import default_fusion  # noqa: E402
+from ushape.reconstruction.pose_calibration import pose_settings_for  # noqa: E402
 from ushape.reconstruction.pretrained import open_model  # noqa: E402
 from ushape.reconstruction.refine_calibration import read_refinement_calibration  # noqa: E402
 from ushape.refinement import refine, refine_settings, world_views  # noqa: E402
-from ushape.refinement.joint import PoseGroups, PoseSettings, refine_pose_and_shape  # noqa: E402
+from ushape.refinement.joint import PoseGroups, refine_pose_and_shape  # noqa: E402
 from ushape.refinement.pose import Pose, log_so3, rotation_angle_deg  # noqa: E402
 
 
@@ -160,7 +161,7 @@ def main() -> None:
     predictor = open_model(args.model, temperature=True)
     world = WorldIndex.load(args.world or predictor.world)
     args.fit = read_refinement_calibration(predictor.checkpoint, "masks")
-    args.pose_settings = PoseSettings()
+    args.pose_settings = pose_settings_for(predictor.checkpoint)  # its fitted pose information scale, if any
     fusion = default_fusion(predictor)
     done = set()
     if args.out.is_file():

@@ -8,6 +8,7 @@ outputs/runs/<date>/<time>_<stage>_<category>[_<loss>]/    one `python train.py`
     temperature.json         stage 2: the variance temperature fitted on val (reconstruct.py --fit-temperature)
     refinement_calibration.json   the refinement's calibration (reconstruct.py --fit-refinement)
     viewpoint.pt             the camera-azimuth head on the frozen features (reconstruct.py --fit-viewpoint)
+    pose_calibration.json    the pose posterior's information scale (reconstruct.py --fit-pose)
     meshes/scores.json       the training demo's reconstructions and their scores
 outputs/multirun/<sweep>/<job>/                           the same, one folder per sweep job
 outputs/decoders/<category>-<hash>/                       one stage-1 decoder
@@ -41,6 +42,7 @@ BEST_FILE = f"{BEST_NAME}.ckpt"
 TEMPERATURE_FILE = "temperature.json"
 CALIBRATION_FILE = "refinement_calibration.json"
 VIEWPOINT_FILE = "viewpoint.pt"
+POSE_CALIBRATION_FILE = "pose_calibration.json"
 SCORES_FILE = "scores.json"
 
 # A stage-1 decoder's folder.

@@ -199,3 +199,23 @@ def test_what_the_image_says_of_its_azimuth_breaks_the_half_turn_tie(box_views):
     assert record["runner_up"] is not None and record["runner_up"]["energy_gap"] > 10.0
     # the box's half turns about x and z (upside down) are not among the upright hypotheses: no symmetry to forgive
     assert rotation_angle_deg(post.poses[0].R, truth.R) < 8.0
+
+
+def test_the_pose_information_scale_scales_the_pose_posterior_and_is_fitted_to_the_squared_error(box_views):
+    from ushape.reconstruction.pose_calibration import fitted_pose_scale, rotation_ratio
+
+    settings = refine_settings("masks", size=32)
+    _, _, _, view = box_views[2]
+    stds = []
+    for scale in (None, 4.0):  # None: the code's scale, 1
+        post = refine_pose_and_shape(Box(), torch.zeros(3), torch.full((3,), 1e-4), [view], PoseGroups.separate(1),
+                                     settings, PoseSettings(pose_information_scale=scale))  # fmt: skip
+        stds.append(post.pose_record(0)["rotation_std_deg"])
+    # four times the information on the pose's rows: half the std, where the masks, not the prior, hold the pose
+    assert stds[1] == pytest.approx(stds[0] / 2, rel=0.05)
+    truth = Pose(np.eye(3), np.array([0.0, 0.0, 2.0]))
+    turned = Pose(exp_so3(np.array([0.0, 0.1, 0.0])), truth.t)
+    assert rotation_ratio(turned, truth, np.diag([0.01, 0.01, 0.01])) == pytest.approx(0.01 / 0.03)
+    assert fitted_pose_scale([2.0, 4.0], 0.09) == pytest.approx(0.03)
+    with pytest.raises(ValueError, match="no unflipped"):
+        fitted_pose_scale([], 1.0)

@@ -10,6 +10,7 @@ each view's image (as the encoder saw it, cropped) says of its azimuth. Cached l
 from __future__ import annotations
 
 import hashlib
+from dataclasses import replace
 from typing import Sequence
 
 import numpy as np
@@ -19,6 +20,7 @@ from ushape import atomic
 from ushape.data.augment import corrupted_view, view_seed
 from ushape.evaluation.refine_method import EvaluationView, RefineMethod, evaluation_view
 from ushape.evaluation.views import Estimate, ViewKey, load_view
+from ushape.reconstruction.pose_calibration import pose_settings_for
 from ushape.refinement.joint import PoseGroups, PoseSettings, refine_pose_and_shape
 
 
@@ -39,7 +41,7 @@ class PoseRefineMethod(RefineMethod):
         run, seed = context.run, context.settings.seed
         cache = self.cache_file(context, fused, keys, min_scale)
         if cache is not None:
-            search = hashlib.sha1(repr(self.pose_settings).encode()).hexdigest()[:8]
+            search = hashlib.sha1(repr(self.pose_settings_for(run)).encode()).hexdigest()[:8]
             cache = cache.with_name(f"pose_{search}_{cache.name}")
             if cache.is_file():
                 blob = torch.load(cache, map_location="cpu", weights_only=False)
@@ -59,7 +61,7 @@ class PoseRefineMethod(RefineMethod):
                     views,
                     groups,
                     self.settings_for(run),
-                    self.pose_settings,
+                    self.pose_settings_for(run),
                     azimuth_logp=logp,
                 )
                 estimate = Estimate(post.mu, post.cov, None)
@@ -68,6 +70,14 @@ class PoseRefineMethod(RefineMethod):
         if cache is not None:
             atomic.torch_save({"mu": estimate.mu, "cov": estimate.var, "fallback": estimate.fallback}, cache)
         return estimate
+
+    def pose_settings_for(self, run) -> PoseSettings:
+        """The search's settings; where `calibrated`, with the run's fitted pose information scale
+        (`reconstruct.py --fit-pose`) unless the method's `pose` sets one."""
+        if not self.calibrated or self.pose_settings.pose_information_scale is not None:
+            return self.pose_settings
+        fitted = pose_settings_for(run.predictor.checkpoint).pose_information_scale
+        return replace(self.pose_settings, pose_information_scale=fitted)
 
     @staticmethod
     def azimuth_log_probs(run, keys: Sequence[ViewKey], min_scale: float, seed: int) -> list | None:

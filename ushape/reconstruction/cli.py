@@ -7,6 +7,7 @@
     python reconstruct.py --fit-temperature [--run RUN | --checkpoint CKPT]
     python reconstruct.py --fit-refinement masks|depth [--run RUN | --checkpoint CKPT] [--refine-size 24]
     python reconstruct.py --fit-viewpoint [--run RUN | --checkpoint CKPT] [--viewpoint-shapes 1000]
+    python reconstruct.py --fit-pose [--run RUN | --checkpoint CKPT] [--fit-shapes 20]
         [--fit-shapes 20]
 
 Without --run/--checkpoint the newest encoder run under ./outputs/runs is used. The fusion rule is
@@ -36,6 +37,7 @@ from ushape.propagation.mesh import METHODS
 from ushape.reconstruction.calibrated_fusion import calibrate_fusion, default_fusion
 from ushape.reconstruction.out_dir import check_out_dir
 from ushape.reconstruction.pipeline import check_settings, reconstruct
+from ushape.reconstruction.pose_calibration import fit_and_store_pose_calibration
 from ushape.reconstruction.predictor import collect_inputs
 from ushape.reconstruction.pretrained import PREFIX, available_models, open_model
 from ushape.reconstruction.refine_calibration import FIT_SHAPES, fit_and_store_refinement_calibration
@@ -105,6 +107,12 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="fit the camera-azimuth head on the run's train renders (scored on val) and store viewpoint.pt, which "
         "the pose estimation of --refine masks then starts from (docs/pose.md)",
+    )
+    parser.add_argument(
+        "--fit-pose",
+        action="store_true",
+        help="fit the pose posterior's information scale on --fit-shapes val shapes (1 and 3 views, cameras hidden; "
+        "after --fit-viewpoint and --fit-refinement masks) and store pose_calibration.json (docs/pose.md)",
     )
     parser.add_argument(
         "--viewpoint-shapes",
@@ -270,6 +278,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 0
         if args.fit_viewpoint:
             record = fit_and_store_viewpoint(predictor_of(args, temperature=False), args.viewpoint_shapes)
+            print(json.dumps(record, indent=2))
+            return 0
+        if args.fit_pose:
+            record = fit_and_store_pose_calibration(predictor_of(args, temperature=True), args.fit_shapes)
             print(json.dumps(record, indent=2))
             return 0
         if args.fit_refinement:

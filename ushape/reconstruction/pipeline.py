@@ -28,6 +28,7 @@ from ushape.reconstruction.figures import overview_figure
 from ushape.reconstruction.mesh_std import Fusion, mesh_std, sdf_distance_scale, sdf_floor, sdf_temperature
 from ushape.reconstruction.out_dir import SUMMARY_FILE, claimed
 from ushape.reconstruction.page import known_cameras, page_figures, reconstruction_page
+from ushape.reconstruction.pose_calibration import pose_settings_for
 from ushape.reconstruction.predictor import Predictor
 from ushape.reconstruction.refine_calibration import read_refinement_calibration
 from ushape.reconstruction.refined_code import r2n2_frame_of, refined
@@ -127,6 +128,7 @@ def encode_views(
                 r2n2_frame_of(predictor),
                 mask_files(inputs, paths, masks),
                 predictor.azimuth_log_probs(images) if settings.refine == "masks" else None,
+                pose_settings_for(predictor.checkpoint),
             )
     return encoded
 

@@ -52,6 +52,7 @@ from ushape.workspace import (
     ENCODER_FILE,
     IDENTITY_FILE,
     MODEL_FILE,
+    POSE_CALIBRATION_FILE,
     SPLITS_FILE,
     VIEWPOINT_FILE,
 )
@@ -194,7 +195,7 @@ def export_pretrained(run: str | Path, name: str, out_root: str | Path = PRETRAI
         {"hyper_parameters": hparams, "state_dict": state, "backbone_from_package": not keep_backbone},
         staging / ENCODER_FILE,
     )
-    for fit in (TEMPERATURE_FILE, CALIBRATION_FILE, VIEWPOINT_FILE):
+    for fit in (TEMPERATURE_FILE, CALIBRATION_FILE, VIEWPOINT_FILE, POSE_CALIBRATION_FILE):
         if (checkpoint.parent / fit).is_file():
             shutil.copy2(checkpoint.parent / fit, staging / fit)
     image_size, mask_mode = input_settings(blob, run_config(run_dir))

@@ -22,7 +22,7 @@ from ushape.refinement.inputs import (
     typical_r2n2_frame,
     unposed_views,
 )
-from ushape.refinement.joint import PoseGroups, refine_pose_and_shape
+from ushape.refinement.joint import PoseGroups, PoseSettings, refine_pose_and_shape
 from ushape.workspace import CONFIG_FILE
 
 log = logging.getLogger(__name__)
@@ -41,6 +41,7 @@ def refined(
     r2n2_frame: R2N2Frame | None = None,  # R2N2's frame in the model's, for R2N2 renders' cameras
     masks: Sequence[Path] | None = None,  # the mask files of `paths` (pose estimation reads them)
     azimuth_logp: torch.Tensor | None = None,  # [V, bins] per path: the viewpoint head's (pose estimation)
+    pose_settings: PoseSettings | None = None,  # the pose search's (its fitted pose information scale)
 ) -> tuple[FusedCode, dict[str, Any], list[ObservedView]]:
     """The fused code refined on the views (FusedCode with var the full covariance [D, D]), its record and the
     views it was refined on; with a calibration, the posterior at its information scale s, and the record
@@ -66,7 +67,9 @@ def refined(
         settings.refine, settings.refine_size, information_scale=scale, starts=settings.refine_starts
     )
     if estimates_pose(settings, views):
-        return pose_refined(decoder, fused, paths, views, settings, options, calibration, masks, azimuth_logp)
+        return pose_refined(
+            decoder, fused, paths, views, settings, options, calibration, masks, azimuth_logp, pose_settings
+        )
     posterior = refine(decoder, fused.mu, fused.var, views, options)
     record = {"mode": settings.refine, "starts": settings.refine_starts, **posterior.record()}
     record["views_with_camera"] = sum(v is not None for v in views)
@@ -86,7 +89,9 @@ def estimates_pose(settings: ReconstructionSettings, views: Sequence[ObservedVie
     return settings.pose == "estimate" or all(v is None for v in views)
 
 
-def pose_refined(decoder, fused, paths, views, settings, options, calibration, masks, azimuth_logp=None):
+def pose_refined(
+    decoder, fused, paths, views, settings, options, calibration, masks, azimuth_logp=None, pose_settings=None
+):
     """The fused code and the object's pose refined together (`refine_pose_and_shape`): every view its own pose,
     or one shared by all where --relative-poses gives their motion; the hypotheses start where the viewpoint head
     (azimuth_logp [V, bins]) says the cameras stood, where the model has one."""
@@ -97,9 +102,11 @@ def pose_refined(decoder, fused, paths, views, settings, options, calibration, m
         else PoseGroups.separate(len(unposed))
     )
     logps = None if azimuth_logp is None else list(azimuth_logp)
-    posterior = refine_pose_and_shape(decoder, fused.mu, fused.var, unposed, groups, options, azimuth_logp=logps)
+    pose_settings = pose_settings or PoseSettings()
+    posterior = refine_pose_and_shape(decoder, fused.mu, fused.var, unposed, groups, options, pose_settings, logps)
     record = {"mode": settings.refine, "starts": 0, **posterior.record()}
     record["pose"]["viewpoint_head"] = azimuth_logp is not None
+    record["pose"]["pose_information_scale"] = pose_settings.pose_information_scale
     record["views_with_camera"] = sum(v is not None for v in views)
     record["calibration"] = None if calibration is None else {k: calibration.get(k) for k in APPLIED}
     record["mu"] = posterior.mu.tolist()

@@ -80,6 +80,9 @@ class PoseSettings:
     # With a viewpoint head: the azimuth bins within this much -log p of the image's most likely one start
     # hypotheses (at most `azimuths` of them), with the best one's half turn
     appearance_window: float = 4.0
+    # s of the pose's rows in the Laplace covariance (None: the code's information scale), fitted on val shapes so
+    # the rotation's squared error matches its variance (`reconstruct.py --fit-pose`)
+    pose_information_scale: float | None = None
 
     def precision(self, dofs: int, with_head: bool = False) -> Tensor:  # [dofs, dofs] float64
         rotation = self.rotation_prior_with_head_deg if with_head else self.rotation_prior_deg
@@ -643,7 +646,12 @@ def _laplace(problem: Problem, state: State, res, w, J, steps, e, report) -> Pos
         raise FloatingPointError("the joint refinement met a non-finite residual or Jacobian")
     H_prior, _ = problem.prior_terms(state)
     information = J.T @ (w[:, None] * J)
-    cov = torch.linalg.inv(H_prior + problem.settings.information_scale * information)
+    # the code's information scale s on the code's rows, the pose's (fitted on val: pose_calibration) on the pose's
+    pose_scale = problem.pose_settings.pose_information_scale
+    scale = torch.full((problem.width,), problem.settings.information_scale, dtype=torch.float64)
+    if pose_scale is not None:
+        scale[D:] = pose_scale
+    cov = torch.linalg.inv(H_prior + scale.sqrt()[:, None] * information * scale.sqrt()[None, :])
     cov = 0.5 * (cov + cov.T)
     pose_cov = [cov[c : c + d, c : c + d].float() for c, d in zip(problem.columns, problem.dofs)]
     cameras = [c for c in (v.world_to_cam for v in problem.posed(state))]
