@@ -17,9 +17,8 @@ import numpy as np
 import torch
 
 from ushape import atomic
-from ushape.data.augment import corrupted_view, view_seed
 from ushape.evaluation.refine_method import EvaluationView, RefineMethod, evaluation_view
-from ushape.evaluation.views import Estimate, ViewKey, load_view
+from ushape.evaluation.views import Estimate, ViewKey, encoder_inputs
 from ushape.reconstruction.pose_calibration import pose_settings_for
 from ushape.refinement.joint import PoseGroups, PoseSettings, refine_pose_and_shape
 
@@ -85,17 +84,5 @@ class PoseRefineMethod(RefineMethod):
         predictor = run.predictor
         if getattr(predictor, "viewpoint", None) is None:
             return None
-        images = torch.stack(
-            [
-                corrupted_view(
-                    load_view(run.world.image_path(k.shape_id, k.view), "gt_mask"),
-                    predictor.image_size,
-                    min_scale,
-                    view_seed(seed, k.shape_id, k.view),
-                    predictor.mask_mode,
-                    predictor.background_value,
-                )
-                for k in keys
-            ]
-        )
+        images = encoder_inputs(predictor, run.world, keys, min_scale, seed)
         return list(predictor.azimuth_log_probs(images))

@@ -103,6 +103,25 @@ def encoder_tag(predictor) -> str:
     return hashlib.sha1(text.encode()).hexdigest()[:16]
 
 
+def encoder_inputs(
+    predictor, world: WorldIndex, keys: Sequence[ViewKey], min_scale: float, seed: int, mask_input: str = "gt_mask"
+) -> Tensor:
+    """The images [V, 3, S, S] the encoder is shown for `keys`: each cropped to min_scale by its own seed."""
+    return torch.stack(
+        [
+            corrupted_view(
+                load_view(world.image_path(k.shape_id, k.view), mask_input),
+                predictor.image_size,
+                min_scale,
+                view_seed(seed, k.shape_id, k.view),
+                predictor.mask_mode,
+                predictor.background_value,
+            )
+            for k in keys
+        ]
+    )
+
+
 def encode_views(
     predictor,
     world: WorldIndex,
@@ -127,20 +146,7 @@ def encode_views(
             return Encodings(keys, blob["mu"], blob["var"])
     mus, vars_ = [], []
     for start in tqdm(range(0, len(keys), batch_size), desc=f"encode (min_scale {min_scale:g})", leave=False):
-        batch = keys[start : start + batch_size]
-        images = torch.stack(
-            [
-                corrupted_view(
-                    load_view(world.image_path(k.shape_id, k.view), mask_input),
-                    predictor.image_size,
-                    min_scale,
-                    view_seed(seed, k.shape_id, k.view),
-                    predictor.mask_mode,
-                    predictor.background_value,
-                )
-                for k in batch
-            ]
-        )
+        images = encoder_inputs(predictor, world, keys[start : start + batch_size], min_scale, seed, mask_input)
         mu, var = predictor.encode(images)
         mus.append(mu.float())
         vars_.append(var.float())

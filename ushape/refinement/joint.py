@@ -548,6 +548,14 @@ def _search(decoder, mu, var, views, groups, settings, pose_settings, starts, az
     best = [h[0][1] for h in starts]
     schedule = pose_settings.tau_schedule or (1.0,)
     grids = GridCache()  # one grid of the fused code for every hypothesis screened
+
+    def about(hypotheses: list[Pose]) -> Problem:  # the problem with its pose priors about these hypotheses
+        problem = Problem(
+            decoder, mu, var, views, groups, settings, pose_settings, hypotheses, azimuth_logp=azimuth_logp
+        )
+        problem.grids = grids
+        return problem
+
     screened: list[list[dict[str, Any]]] = []
     mu64 = mu.detach().double()
     for g in range(groups.count):
@@ -555,8 +563,7 @@ def _search(decoder, mu, var, views, groups, settings, pose_settings, starts, az
         for azimuth, hyp in starts[g]:
             hyps = list(best)
             hyps[g] = hyp
-            problem = Problem(decoder, mu, var, views, groups, settings, pose_settings, hyps, azimuth_logp=azimuth_logp)
-            problem.grids = grids
+            problem = about(hyps)
             _, state, *_, e, _ = staged(
                 problem, State(mu64.clone(), hyps), pose_settings.screen_iterations, 0, schedule[:1]
             )
@@ -572,18 +579,7 @@ def _search(decoder, mu, var, views, groups, settings, pose_settings, starts, az
     runs = []
     for plan in plans:
         rows = [screened[g][chosen[g][k]] for g, k in enumerate(plan)]
-        problem = Problem(
-            decoder,
-            mu,
-            var,
-            views,
-            groups,
-            settings,
-            pose_settings,
-            [r["start"] for r in rows],
-            azimuth_logp=azimuth_logp,
-        )
-        problem.grids = grids
+        problem = about([r["start"] for r in rows])
         problem, state, res, w, J, e, steps = staged(
             problem,
             State(mu64.clone(), [r["pose"] for r in rows]),
