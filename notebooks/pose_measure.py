@@ -37,8 +37,9 @@ from ushape.reconstruction.pose_calibration import pose_settings_for  # noqa: E4
 from ushape.reconstruction.pretrained import open_model  # noqa: E402
 from ushape.reconstruction.refine_calibration import read_refinement_calibration  # noqa: E402
 from ushape.refinement import refine, refine_settings, world_views  # noqa: E402
-from ushape.refinement.joint import PoseGroups, refine_pose_and_shape  # noqa: E402
+from ushape.refinement.joint import PoseGroups  # noqa: E402
 from ushape.refinement.pose import Pose, log_so3, rotation_angle_deg  # noqa: E402
+from ushape.refinement.pose_search import refine_pose_and_shape  # noqa: E402
 
 
 def iou(decoder, code, voxels, frame) -> float:

@@ -14,8 +14,9 @@ from torch import nn
 
 from ushape.data.cameras import look_at
 from ushape.propagation.sphere_tracing import camera_rays
-from ushape.refinement.joint import PoseGroups, PoseSettings, Problem, State, refine_pose_and_shape
+from ushape.refinement.joint import PoseGroups, PoseSettings, Problem, State
 from ushape.refinement.pose import Pose, exp_so3, log_so3, point_jacobian, rotation_angle_deg, scale_observable
+from ushape.refinement.pose_search import refine_pose_and_shape
 from ushape.refinement.posterior import refine_settings
 from ushape.refinement.ray_search import ray_minimum
 from ushape.refinement.views import ObservedView

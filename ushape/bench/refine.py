@@ -19,7 +19,8 @@ from ushape.bench.depth import orbit_cameras
 from ushape.bench.timing import Measurement, timed
 from ushape.propagation.depth_implicit import depth_uncertainty_implicit_views
 from ushape.refinement import ObservationSettings, ObservedView, RefineSettings, refine
-from ushape.refinement.joint import PoseGroups, PoseSettings, refine_pose_and_shape
+from ushape.refinement.joint import PoseGroups, PoseSettings
+from ushape.refinement.pose_search import refine_pose_and_shape
 
 
 def code_views(decoder: nn.Module, code: Tensor, views: int, size: int) -> list[ObservedView]:  # code [D]

@@ -20,7 +20,8 @@ from ushape import atomic
 from ushape.evaluation.refine_method import EvaluationView, RefineMethod, evaluation_view
 from ushape.evaluation.views import Estimate, ViewKey, encoder_inputs
 from ushape.reconstruction.pose_calibration import pose_settings_for
-from ushape.refinement.joint import PoseGroups, PoseSettings, refine_pose_and_shape
+from ushape.refinement.joint import PoseGroups, PoseSettings
+from ushape.refinement.pose_search import refine_pose_and_shape
 
 
 class PoseRefineMethod(RefineMethod):

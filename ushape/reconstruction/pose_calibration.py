@@ -26,8 +26,9 @@ from ushape.reconstruction.calibrated_fusion import default_fusion
 from ushape.reconstruction.predictor import Predictor
 from ushape.reconstruction.refine_calibration import read_refinement_calibration
 from ushape.refinement import refine_settings, world_views
-from ushape.refinement.joint import PoseGroups, PoseSettings, refine_pose_and_shape
+from ushape.refinement.joint import PoseGroups, PoseSettings
 from ushape.refinement.pose import Pose, log_so3
+from ushape.refinement.pose_search import refine_pose_and_shape
 from ushape.workspace import POSE_CALIBRATION_FILE
 
 log = logging.getLogger(__name__)

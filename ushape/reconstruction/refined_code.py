@@ -22,7 +22,8 @@ from ushape.refinement.inputs import (
     typical_r2n2_frame,
     unposed_views,
 )
-from ushape.refinement.joint import PoseGroups, PoseSettings, refine_pose_and_shape
+from ushape.refinement.joint import PoseGroups, PoseSettings
+from ushape.refinement.pose_search import refine_pose_and_shape
 from ushape.workspace import CONFIG_FILE
 
 log = logging.getLogger(__name__)
