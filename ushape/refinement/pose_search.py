@@ -179,17 +179,17 @@ def refine_pose_and_shape(
         screened = screen_view(replace(v, world_to_cam=PLACEHOLDER_CAMERA), use_depth=False)
         if screened.view is None:
             raise ValueError(f"view {i}: {screened.fallback}: a pose needs a mask that outlines the object")
+    if azimuth_logp is not None and len(azimuth_logp) != len(views):
+        raise ValueError(f"{len(views)} views but {len(azimuth_logp)} azimuth distributions")
     with frozen(decoder):
         points = interior_points(decoder, mu.detach()).numpy().astype(np.float64)
         starts = []
-        if azimuth_logp is not None and len(azimuth_logp) != len(views):
-            raise ValueError(f"{len(views)} views but {len(azimuth_logp)} azimuth distributions")
         for g in range(groups.count):
-            first = groups.members(g)[0]
+            members = groups.members(g)
+            first = members[0]
             cam = np.asarray(groups.cams_from_ref[first], dtype=np.float64)
             logp = None if azimuth_logp is None else azimuth_logp[first]
             bins = None if logp is None else int(logp.shape[0])
-            members = groups.members(g)
             centre = None
             if groups.dofs(g) == 7:  # a baseline: where the object is, and so its size in the reference's units
                 centre = triangulated_centre([views[i] for i in members], [groups.cams_from_ref[i] for i in members])
