@@ -83,11 +83,11 @@ def refined(
 
 
 def estimates_pose(settings: ReconstructionSettings, views: Sequence[ObservedView | None]) -> bool:
-    """Whether the object's pose is estimated: asked (--pose estimate), or by default (auto) where the refinement
-    is on masks and no view has a camera."""
+    """Whether the object's pose is estimated: asked (--pose estimate, or --relative-poses given), or by default
+    (auto) where the refinement is on masks and no view has a camera."""
     if settings.pose == "given" or settings.refine != "masks":
         return False
-    return settings.pose == "estimate" or all(v is None for v in views)
+    return settings.pose == "estimate" or bool(settings.relative_poses) or all(v is None for v in views)
 
 
 def pose_refined(
