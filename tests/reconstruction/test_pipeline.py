@@ -263,6 +263,9 @@ def test_refine_masks_without_cameras_estimates_the_pose_and_relative_poses_shar
     given = dataclasses.replace(settings, pose="given")
     summary = reconstruct(sphere_predictor, photos, BayesianKFusion(k=2), tmp_path / "out3", given)
     assert summary["refinement"]["fallback"] == "no view has a camera"
+    with pytest.raises(ValueError, match="drop --pose given"):
+        reconstruct(sphere_predictor, photos, BayesianKFusion(k=2), tmp_path / "o5",
+                    dataclasses.replace(shared, pose="given"))  # fmt: skip
     with pytest.raises(ValueError, match="need --refine masks"):
         reconstruct(sphere_predictor, photos, BayesianKFusion(k=2), tmp_path / "o4",
                     dataclasses.replace(SMALL, pose="estimate"))  # fmt: skip

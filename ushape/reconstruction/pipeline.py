@@ -65,6 +65,8 @@ def check_settings(settings: ReconstructionSettings) -> None:
         raise ValueError(
             "the object's pose is estimated from masks: --pose estimate and --relative-poses need --refine masks"
         )
+    if settings.pose == "given" and settings.relative_poses:
+        raise ValueError("--relative-poses is read by the pose estimation: drop --pose given")
     if not 0 < settings.fov < 180:
         raise ValueError(f"fov (--fov) must be in (0, 180) degrees, got {settings.fov}")
     if settings.refine_starts < 0:
