@@ -46,9 +46,12 @@ def test_the_head_learns_an_azimuth_the_features_carry(tmp_path):
     save_viewpoint_head(head, tmp_path / "viewpoint.pt", scores)
     again = load_viewpoint_head(tmp_path / "viewpoint.pt")
     x = features_of(held[:5], g)
-    # stored in fp16: the log-probabilities move by rounding only (< 0.01 nats), the most likely bin not at all
-    torch.testing.assert_close(again.log_probs(x), head.log_probs(x), atol=1e-2, rtol=0)
-    assert torch.equal(again.log_probs(x).argmax(-1), head.log_probs(x).argmax(-1))
+    # stored in fp16: the log-probabilities move by rounding only (< 0.01 nats), so the reloaded head's most likely
+    # bin is, under the original head, within that tolerance of the original's best (a near-tie may swap them)
+    before, after = head.log_probs(x), again.log_probs(x)
+    torch.testing.assert_close(after, before, atol=1e-2, rtol=0)
+    chosen = before.gather(1, after.argmax(-1, keepdim=True))[:, 0]
+    assert bool((before.max(-1).values - chosen <= 2e-2).all())
     # noise features: the head cannot know, and says so by spreading its probability
     blind = fit_viewpoint_head(torch.randn(2000, 32, generator=g), train, bins=24, epochs=5)
     assert float(blind.log_probs(x).exp().max()) < 0.5
