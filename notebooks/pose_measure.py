@@ -49,8 +49,7 @@ def iou(decoder, code, voxels, frame) -> float:
 
 def pose_row(decoder, fused, views, settings, pose_settings, azimuth_logp=None) -> dict:
     truth = Pose.from_world_to_cam(views[0].world_to_cam)
-    first = np.linalg.inv(views[0].world_to_cam)
-    groups = PoseGroups.shared([v.world_to_cam @ first for v in views])
+    groups = PoseGroups.from_cameras([v.world_to_cam for v in views])
     start = time.perf_counter()
     post = refine_pose_and_shape(decoder, fused.mu, fused.var, views, groups, settings, pose_settings, azimuth_logp)
     seconds = time.perf_counter() - start

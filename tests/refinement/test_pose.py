@@ -120,8 +120,8 @@ def test_a_sphere_keeps_the_prior_on_rotation_and_recovers_translation_and_radiu
     posterior's rotation block is the prior's exactly; the baseline gives its position and its size."""
     decoder, px = Ball(), 64
     views = [view_of(decoder, torch.zeros(1), az, 20.0, 2.0, px) for az in (0.0, 60.0, 120.0)]
-    first = np.linalg.inv(views[0].world_to_cam)
-    groups = PoseGroups.shared([v.world_to_cam @ first for v in views])
+    groups = PoseGroups.from_cameras([v.world_to_cam for v in views])
+    np.testing.assert_allclose(groups.cams_from_ref[0], np.eye(4), atol=1e-12)  # the first camera is the reference
     pose_settings = PoseSettings(azimuths=2)
     settings = refine_settings("masks", size=48)
     post = refine_pose_and_shape(decoder, torch.tensor([0.2]), torch.tensor([0.05]), views, groups, settings,

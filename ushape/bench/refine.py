@@ -11,7 +11,6 @@ refinement compares `rays` rays per image side (reconstruct.py's --refine-size).
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -33,6 +32,13 @@ def code_views(decoder: nn.Module, code: Tensor, views: int, size: int) -> list[
     ]
 
 
+def displaced_prior(code: Tensor, seed: int) -> tuple[Tensor, Tensor]:  # code [D] -> mu [D], var [D]
+    """The prior the bench refines from: 0.1 std (var 0.01 a dimension) away from the code, as a fused code would be."""
+    return code + 0.1 * torch.randn(code.shape, generator=torch.Generator().manual_seed(seed)), torch.full_like(
+        code, 0.01
+    )
+
+
 def refine_rows(
     decoder: nn.Module,
     code: Tensor,  # [D]
@@ -44,8 +50,7 @@ def refine_rows(
 ) -> list[Measurement]:
     """Rows "refine masks (<views> views, <size> px)" and "refine depth (...)", each noting its iterations."""
     observed = code_views(decoder, code, views, size)
-    prior_mu = code + 0.1 * torch.randn(code.shape, generator=torch.Generator().manual_seed(seed))
-    prior_var = torch.full_like(code, 0.01)
+    prior_mu, prior_var = displaced_prior(code, seed)
     rows = []
     for mode in ("masks", "depth"):
         settings = RefineSettings(mode=mode, observation=ObservationSettings(size=rays))
@@ -68,15 +73,13 @@ def pose_rows(
     """Rows "refine masks, pose estimated (<n> of <views> views, <size> px)" for n = 1 and 3, with the known-camera
     refinement of the same views and the ratio between them in the note."""
     observed = code_views(decoder, code, views, size)
-    prior_mu = code + 0.1 * torch.randn(code.shape, generator=torch.Generator().manual_seed(seed))
-    prior_var = torch.full_like(code, 0.01)
+    prior_mu, prior_var = displaced_prior(code, seed)
     settings = RefineSettings(mode="masks", observation=ObservationSettings(size=rays))
     rows = []
     for n in (1, 3):
         chosen = observed[:: max(1, len(observed) // n)][:n]
         known, _ = timed(lambda: refine(decoder, prior_mu, prior_var, chosen, settings), repeats)
-        first = np.linalg.inv(chosen[0].world_to_cam)
-        groups = PoseGroups.shared([v.world_to_cam @ first for v in chosen])
+        groups = PoseGroups.from_cameras([v.world_to_cam for v in chosen])
         seconds, post = timed(
             lambda: refine_pose_and_shape(decoder, prior_mu, prior_var, chosen, groups, settings, pose_settings),
             repeats,

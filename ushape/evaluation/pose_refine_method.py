@@ -13,7 +13,6 @@ import hashlib
 from dataclasses import replace
 from typing import Sequence
 
-import numpy as np
 import torch
 
 from ushape import atomic
@@ -50,8 +49,7 @@ class PoseRefineMethod(RefineMethod):
         if any(v is None for v in views):  # no camera to keep K and the relative motion from: the prior
             estimate = Estimate(fused.mu, fused.var, "no camera")
         else:
-            first = np.linalg.inv(views[0].world_to_cam)
-            groups = PoseGroups.shared([v.world_to_cam @ first for v in views])
+            groups = PoseGroups.from_cameras([v.world_to_cam for v in views])
             logp = self.azimuth_log_probs(run, keys, min_scale, seed)
             try:
                 post = refine_pose_and_shape(

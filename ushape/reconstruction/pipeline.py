@@ -129,7 +129,7 @@ def encode_views(
                 calibration,
                 r2n2_frame_of(predictor),
                 mask_files(inputs, paths, masks),
-                predictor.azimuth_log_probs(images) if settings.refine == "masks" else None,
+                lambda: predictor.azimuth_log_probs(images),
                 pose_settings_for(predictor.checkpoint),
             )
     return encoded

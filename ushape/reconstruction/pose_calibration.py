@@ -12,7 +12,6 @@ s_pose = s / mean(ratio at s) brings that mean to 1.
 from __future__ import annotations
 
 import logging
-import math
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -24,20 +23,15 @@ from ushape.encoder.datamodule import view_files
 from ushape.errors import InputError
 from ushape.reconstruction.calibrated_fusion import default_fusion
 from ushape.reconstruction.predictor import Predictor
-from ushape.reconstruction.refine_calibration import read_refinement_calibration
+from ushape.reconstruction.refine_calibration import read_refinement_calibration, spread_views
 from ushape.refinement import refine_settings, world_views
 from ushape.refinement.joint import PoseGroups, PoseSettings
-from ushape.refinement.pose import Pose, log_so3
+from ushape.refinement.pose import Pose, log_so3, rotation_angle_deg
 from ushape.refinement.pose_search import refine_pose_and_shape
 from ushape.workspace import POSE_CALIBRATION_FILE
 
 log = logging.getLogger(__name__)
 FLIP_DEG = 90.0  # a rotation error past this is a wrong basin, not a spread: left out of the fit
-
-
-def spread_views(n: int, total: int) -> list[int]:
-    """n view indices spread evenly around an orbit of `total` (view 0 first)."""
-    return sorted({round(i * total / n) % total for i in range(n)})
 
 
 def rotation_ratio(estimate: Pose, truth: Pose, rotation_cov: np.ndarray) -> float:
@@ -71,18 +65,17 @@ def fit_and_store_pose_calibration(
         images, _, _ = predictor.load_images(files)
         mu, var = predictor.encode(images)
         for n in views:
-            chosen = spread_views(n, len(files))
+            chosen = spread_views(len(files), n)
             fused = fusion(mu[chosen], var[chosen])
             observed = world_views(world.views_path(shape_id), chosen, with_depth=False)
-            first = np.linalg.inv(observed[0].world_to_cam)
-            groups = PoseGroups.shared([v.world_to_cam @ first for v in observed])
+            groups = PoseGroups.from_cameras([v.world_to_cam for v in observed])
             logp = predictor.azimuth_log_probs(images[chosen])
             post = refine_pose_and_shape(
                 predictor.decoder, fused.mu, fused.var, observed, groups, settings, PoseSettings(),
                 None if logp is None else list(logp),
             )  # fmt: skip
             truth = Pose.from_world_to_cam(observed[0].world_to_cam)
-            if math.degrees(float(np.linalg.norm(log_so3(post.poses[0].R.T @ truth.R)))) > FLIP_DEG:
+            if rotation_angle_deg(post.poses[0].R, truth.R) > FLIP_DEG:
                 flips += 1
                 continue
             ratios.append(rotation_ratio(post.poses[0], truth, post.pose_cov[0].double()[:3, :3].numpy()))

@@ -194,12 +194,14 @@ class Predictor:
     viewpoint: nn.Module | None = None
 
     @torch.no_grad()
+    def features(self, images: Tensor) -> Tensor:
+        """The frozen backbone's features [V, F] of images [V, 3, S, S] (what the heads read)."""
+        self.model.eval()
+        return self.model.encoder.features(images.float())
+
     def azimuth_log_probs(self, images: Tensor) -> Tensor | None:
         """log p(camera azimuth bin) [V, bins] of each image (`ushape.encoder.viewpoint`); None without a head."""
-        if self.viewpoint is None:
-            return None
-        self.model.eval()
-        return self.viewpoint.log_probs(self.model.encoder.features(images.float()))
+        return None if self.viewpoint is None else self.viewpoint.log_probs(self.features(images))
 
     @property
     def decoder(self) -> nn.Module:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import logging
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import torch
 
@@ -41,7 +41,9 @@ def refined(
     calibration: dict[str, Any] | None = None,  # --fit-refinement's fit for this mode (None: none)
     r2n2_frame: R2N2Frame | None = None,  # R2N2's frame in the model's, for R2N2 renders' cameras
     masks: Sequence[Path] | None = None,  # the mask files of `paths` (pose estimation reads them)
-    azimuth_logp: torch.Tensor | None = None,  # [V, bins] per path: the viewpoint head's (pose estimation)
+    # () -> [V, bins] per path, the viewpoint head's azimuth log-probabilities (or None): asked only where the pose
+    # is estimated, so a refinement through known cameras pays no second backbone pass
+    viewpoint: Callable[[], torch.Tensor | None] | None = None,
     pose_settings: PoseSettings | None = None,  # the pose search's (its fitted pose information scale)
 ) -> tuple[FusedCode, dict[str, Any], list[ObservedView]]:
     """The fused code refined on the views (FusedCode with var the full covariance [D, D]), its record and the
@@ -69,7 +71,7 @@ def refined(
     )
     if estimates_pose(settings, views):
         return pose_refined(
-            decoder, fused, paths, views, settings, options, calibration, masks, azimuth_logp, pose_settings
+            decoder, fused, paths, views, settings, options, calibration, masks, viewpoint, pose_settings
         )
     posterior = refine(decoder, fused.mu, fused.var, views, options)
     record = {"mode": settings.refine, "starts": settings.refine_starts, **posterior.record()}
@@ -91,17 +93,18 @@ def estimates_pose(settings: ReconstructionSettings, views: Sequence[ObservedVie
 
 
 def pose_refined(
-    decoder, fused, paths, views, settings, options, calibration, masks, azimuth_logp=None, pose_settings=None
+    decoder, fused, paths, views, settings, options, calibration, masks, viewpoint=None, pose_settings=None
 ):
     """The fused code and the object's pose refined together (`refine_pose_and_shape`): every view its own pose,
     or one shared by all where --relative-poses gives their motion; the hypotheses start where the viewpoint head
-    (azimuth_logp [V, bins]) says the cameras stood, where the model has one."""
+    (`viewpoint`: its azimuth log-probabilities [V, bins]) says the cameras stood, where the model has one."""
     unposed = unposed_views(paths, views, masks, settings.fov)
     groups = (
         relative_pose_groups(settings.relative_poses, len(unposed))
         if settings.relative_poses
         else PoseGroups.separate(len(unposed))
     )
+    azimuth_logp = None if viewpoint is None else viewpoint()
     logps = None if azimuth_logp is None else list(azimuth_logp)
     pose_settings = pose_settings or PoseSettings()
     posterior = refine_pose_and_shape(decoder, fused.mu, fused.var, unposed, groups, options, pose_settings, logps)

@@ -30,14 +30,12 @@ from ushape.workspace import VIEWPOINT_FILE
 log = logging.getLogger(__name__)
 
 
-@torch.no_grad()
 def split_features(predictor: Predictor, world: WorldIndex, split: str, n_shapes: int | None) -> tuple:
     """(features [N, F], azimuths [N] degrees) of every render of the split's first n_shapes shapes."""
     features, azimuths = [], []
     for shape_id in world.shape_ids(split)[:n_shapes]:
         images, _, _ = predictor.load_images(view_files(world.root, shape_id))
-        predictor.model.eval()
-        features.append(predictor.model.encoder.features(images.float()))
+        features.append(predictor.features(images))
         with np.load(world.views_path(shape_id)) as data:
             azimuths += [camera_azimuth_elevation(w2c)[0] for w2c in data["world_to_cam"]]
     if not features:

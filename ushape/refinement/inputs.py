@@ -22,12 +22,12 @@ import numpy as np
 import torch
 
 from ushape.data.augment import read_image
-from ushape.data.cameras import metadata_to_cameras, parse_metadata
+from ushape.data.cameras import intrinsics, metadata_to_cameras, parse_metadata
 from ushape.data.layout import VIEWS_FILE, WorldIndex
 from ushape.data.real.shapenet_rendering import METADATA_FILE
 from ushape.errors import InputError, MissingInputError
-from ushape.refinement.joint import PLACEHOLDER_CAMERA, PoseGroups, default_intrinsics
-from ushape.refinement.views import ObservedView, camera_problem
+from ushape.refinement.joint import PLACEHOLDER_CAMERA, PoseGroups
+from ushape.refinement.views import FULL_MASK, ObservedView, camera_problem
 
 log = logging.getLogger(__name__)
 R2N2Frame = tuple[np.ndarray, float]  # (r2n2_centre [3], r2n2_scale): R2N2's frame in the model's (data.cameras)
@@ -208,12 +208,12 @@ def unposed_views(
             out.append(views[i])
             continue
         mask = image_mask(image) if masks is None else image_mask(masks[i], False)
-        if float(mask.mean()) >= 0.995:
+        if float(mask.mean()) >= FULL_MASK:
             raise InputError(
                 f"{image}: no mask and no alpha channel to tell the object from the background, so its pose cannot "
                 "be estimated: pass --masks MASK.png (white = object), one per image"
             )
-        K = default_intrinsics(tuple(mask.shape), fov_deg)
+        K = intrinsics(fov_deg, tuple(mask.shape))
         out.append(ObservedView(K=K, world_to_cam=PLACEHOLDER_CAMERA, mask=mask))
     return out
 
@@ -240,5 +240,4 @@ def relative_pose_groups(path: str | Path, n_views: int) -> PoseGroups:
         r = m[:3, :3]
         if not (np.isfinite(m).all() and np.allclose(r @ r.T, np.eye(3), atol=1e-3) and np.linalg.det(r) > 0):
             raise InputError(f"relative poses {path}: world_to_cam[{i}] is not a rigid motion")
-    first = np.linalg.inv(w2c[0])
-    return PoseGroups.shared([m @ first for m in w2c])
+    return PoseGroups.from_cameras(list(w2c))

@@ -99,6 +99,13 @@ class PoseGroups:
         """One pose for all, each view's motion from the first camera given."""
         return cls(tuple(0 for _ in cams_from_first), tuple(np.asarray(c, dtype=np.float64) for c in cams_from_first))
 
+    @classmethod
+    def from_cameras(cls, world_to_cams: Sequence[np.ndarray]) -> "PoseGroups":
+        """One pose for views whose cameras [V][4, 4] are known in some common frame (odometry, a turntable, R2N2's
+        rows): only their motion from the first is kept."""
+        first = np.linalg.inv(np.asarray(world_to_cams[0], dtype=np.float64))
+        return cls.shared([np.asarray(w2c, dtype=np.float64) @ first for w2c in world_to_cams])
+
     @property
     def count(self) -> int:
         return max(self.group) + 1 if self.group else 0
@@ -141,13 +148,6 @@ class PosedPosterior(Posterior):
             "cameras": [c.tolist() for c in self.cameras],
         }
         return out
-
-
-def default_intrinsics(image_hw: tuple[int, int], fov_deg: float) -> np.ndarray:
-    """K [3, 3] of an image with no camera file: the field of view across its larger side, centred."""
-    h, w = image_hw
-    f = 0.5 * max(h, w) / math.tan(math.radians(fov_deg) / 2.0)
-    return np.array([[f, 0.0, w / 2.0], [0.0, f, h / 2.0], [0.0, 0.0, 1.0]])
 
 
 # ---- the state's energy and Jacobian -------------------------------------------------------------------------
