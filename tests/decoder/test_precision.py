@@ -58,3 +58,23 @@ def test_explicit_choices_are_kept_and_other_devices_get_fp32(monkeypatch, caplo
 def test_an_unknown_precision_names_the_choices():
     with pytest.raises(ValueError, match="auto.*fp32.*bf16"):
         P.resolve_precision("fp16")
+
+
+@pytest.mark.parametrize(("capabilities", "auto"), [(AMX, True), (NO_AMX, False)])
+def test_training_bf16_auto_follows_the_amx_rule_and_explicit_choices_stay(monkeypatch, capabilities, auto):
+    monkeypatch.setattr(torch.cpu, "get_capabilities", lambda: capabilities)
+    P._auto_bf16.cache_clear()
+    try:
+        assert P.training_bf16("auto", "cpu") is auto
+        assert P.training_bf16(True, "cpu") is True and P.training_bf16(False, "cpu") is False
+    finally:
+        P._auto_bf16.cache_clear()
+    with pytest.raises(ValueError, match="true, false or 'auto'"):
+        P.training_bf16("fp16", "cpu")
+
+
+def test_an_accelerator_name_gives_its_device(monkeypatch):
+    assert P.accelerator_device("cpu") == torch.device("cpu")
+    assert P.accelerator_device("gpu") == torch.device("cuda") == P.accelerator_device("cuda")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert P.accelerator_device("auto") == torch.device("cpu")

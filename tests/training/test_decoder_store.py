@@ -152,3 +152,16 @@ def test_a_moved_data_class_keeps_the_decoders_trained_on_it(tmp_path):
     old = _cfg(tmp_path, data={**data, "_target_": "ushape.data.real_world.ShapeNetWorld"})
     new = _cfg(tmp_path, data={**data, "_target_": "ushape.data.real.shapenet_world.ShapeNetWorld"})
     assert decoder_dir_for(new) == decoder_dir_for(old)
+
+
+def test_bf16_auto_is_hashed_as_what_it_resolves_to(tmp_path, monkeypatch):
+    """Without AMX "auto" trains in fp32: the same decoder as bf16 false (trained before "auto" existed)."""
+    from ushape.decoder import precision
+
+    def folder(bf16):
+        stage1 = {"epochs": 3, "module": {"bf16": bf16}, "latent_optim": {"bf16": bf16}}
+        return decoder_dir_for(_cfg(tmp_path, stage1=stage1, trainer={"accelerator": "cpu"}))
+
+    for amx, same_as in ((False, False), (True, True)):
+        monkeypatch.setattr(precision, "_auto_bf16", lambda device, amx=amx: amx)
+        assert folder("auto") == folder(same_as) != folder(not same_as)

@@ -15,6 +15,7 @@ from omegaconf import OmegaConf
 from torch import Tensor, nn
 
 from ushape.decoder.losses import clamped_l1, code_regulariser
+from ushape.decoder.precision import training_bf16
 from ushape.decoder.query import code_sdf_fn, decoder_autocast
 from ushape.mesh.extraction import EmptySurfaceError, extract_mesh
 from ushape.mesh.preview import preview_image
@@ -77,7 +78,7 @@ class AutoDecoderModule(L.LightningModule):
         lr_step_epochs: int = 500,
         lr_gamma: float = 0.5,
         optimizer: Mapping[str, Any] = DEEPSDF_OPTIMIZER,
-        bf16: bool = False,
+        bf16: bool | str = False,
         val_every_n_epochs: int = 50,
         val_mesh_resolution: int = 64,
         val_iou_resolution: int = 32,
@@ -99,6 +100,11 @@ class AutoDecoderModule(L.LightningModule):
         # Ground-truth occupancies of validation shapes, computed once (inside tests are the slow part).
         self._gt_cache: dict[str, tuple[trimesh.Trimesh, np.ndarray]] = {}
 
+    @property
+    def bf16(self) -> bool:
+        """Whether the decoder runs under bf16 autocast on this module's device ("auto": where it is faster)."""
+        return training_bf16(self.hparams.bf16, self.device)
+
     def forward(self, xyz: Tensor, index: Tensor) -> Tensor:
         """SDF of training shapes `index` [B] at points xyz [B, S, 3]. -> [B, S]"""
         return self.decoder(xyz, self.codes(index)[:, None, :])
@@ -106,7 +112,7 @@ class AutoDecoderModule(L.LightningModule):
     def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
         hp = self.hparams
         codes = self.codes(batch["index"])  # [B, D]; the embedding renormalises rows above max_norm
-        with decoder_autocast(self.device, hp.bf16):
+        with decoder_autocast(self.device, self.bf16):
             pred = self.decoder(batch["xyz"], codes[:, None, :])  # [B, S]
         sdf_loss = clamped_l1(pred.float(), batch["sdf"], hp.clamp_distance)
         # DeepSDF counts epochs from 1, so the ramp is already non-zero in the first epoch.
@@ -155,7 +161,7 @@ class AutoDecoderModule(L.LightningModule):
         hp = self.hparams
         gt_mesh, gt_occupancy = self._ground_truth(batch["mesh_path"])
         code = self.bounded_codes()[batch["index"]]
-        sdf_fn = code_sdf_fn(self.decoder, code, bf16=hp.bf16)
+        sdf_fn = code_sdf_fn(self.decoder, code, bf16=self.bf16)
         occupancy = occupancy_grid(sdf_inside_fn(sdf_fn), hp.val_iou_resolution)
         self.log("val/iou", iou_from_occupancy(gt_occupancy, occupancy), batch_size=1)
         try:

@@ -15,6 +15,7 @@ from torch import Tensor, nn
 
 from ushape.data.sdf_dataset import SDFSamplesDataset
 from ushape.decoder.losses import code_prior
+from ushape.decoder.precision import training_bf16
 from ushape.decoder.query import decoder_autocast, decoder_device, frozen
 
 SampleSource = Sequence[tuple[Tensor, Tensor]] | SDFSamplesDataset
@@ -30,15 +31,17 @@ def optimise_codes(
     code_reg: float = 1e-4,
     clamp: float = 0.1,
     init_std: float = 0.01,
-    bf16: bool = False,
+    bf16: bool | str = False,
     seed: int = 0,
 ) -> Tensor:
     """Latent codes fitting each shape's SDF samples under the frozen decoder. -> [S, D]
 
     sdf_samples: a list of (xyz [N, 3], sdf [N]) per shape, or an SDFSamplesDataset (all its samples).
+    bf16: autocast the decoder to bf16 (True), not (False), or where it is faster on its device ("auto").
     """
     pos, pos_count, neg, neg_count = _padded_by_sign(sdf_samples)
     device = decoder_device(decoder)
+    bf16 = training_bf16(bf16, device)
     pos, pos_count, neg, neg_count = (t.to(device) for t in (pos, pos_count, neg, neg_count))
     generator = torch.Generator(device="cpu").manual_seed(seed)
     num_shapes, latent_size = pos.shape[0], decoder.latent_size

@@ -1,4 +1,5 @@
-"""Which precision the decoder's inference runs in: "fp32", "bf16", or "auto" (bf16 where it is faster).
+"""Which precision the decoder's inference runs in: "fp32", "bf16", or "auto" (bf16 where it is faster);
+and whether training autocasts to bf16 (`training_bf16`: true, false or "auto", by the same rule).
 
 bf16 surely pays where the hardware multiplies bf16 matrices natively: Intel CPUs with AMX
 (amx_bf16 and amx_tile; 3-4x faster than fp32 on the 8x512 decoder) and CUDA devices of compute
@@ -17,6 +18,7 @@ dispatches on). On an older torch, or a build whose mapping lacks the AMX keys, 
 
 from __future__ import annotations
 
+import functools
 import logging
 from pathlib import Path
 from typing import Mapping
@@ -87,3 +89,31 @@ def resolve_precision(
         resolved, why = precision, "asked for"
     log.info("precision %s -> %s on %s: %s", precision, resolved, torch.device(device), why)
     return resolved, why
+
+
+def training_bf16(bf16: bool | str, device: torch.device | str = "cpu") -> bool:
+    """Whether a training step (stage 1, stage 2, latent optimisation) autocasts to bf16 on `device`.
+
+    True / False as asked; "auto" where `bf16_is_faster` (AMX CPUs, CUDA >= 8.0). Autocast keeps the
+    weights and the optimiser's state in fp32 (the master copy); only the matrix products run in bf16.
+    """
+    if isinstance(bf16, bool):
+        return bf16
+    if bf16 != "auto":
+        raise ValueError(f"bf16 must be true, false or 'auto', got {bf16!r}")
+    return _auto_bf16(str(torch.device(device)))
+
+
+@functools.lru_cache(maxsize=None)
+def _auto_bf16(device: str) -> bool:
+    """`bf16_is_faster` once per device (a training step asks every step); logged when it is decided."""
+    faster, why = bf16_is_faster(device)
+    log.info("training bf16 auto -> %s on %s: %s", "bf16" if faster else "fp32", device, why)
+    return faster
+
+
+def accelerator_device(accelerator: str) -> torch.device:
+    """The device a Lightning `accelerator` name trains on ("auto": CUDA where there is one)."""
+    if accelerator in ("gpu", "cuda") or (accelerator == "auto" and torch.cuda.is_available()):
+        return torch.device("cuda")
+    return torch.device("cpu" if accelerator == "auto" else accelerator)

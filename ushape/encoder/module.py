@@ -24,6 +24,7 @@ from torch import Tensor
 
 from ushape.builders import build
 from ushape.decoder.artifacts import codes_file, load_codes, load_decoder
+from ushape.decoder.precision import training_bf16
 from ushape.encoder.figures import mesh_panel, render_code
 from ushape.encoder.heads import GaussianEnsemble, ImageEncoder
 from ushape.encoder.latent_metrics import latent_scores
@@ -115,7 +116,7 @@ class EncoderModule(L.LightningModule):
         weight_decay: float | None = None,
         poly_power: float = 0.9,
         max_epochs: int | None = None,
-        bf16: bool = False,
+        bf16: bool | str = False,
         val_samples: int = 1000,
         calibration_levels: int = 20,
         log_meshes: bool = False,
@@ -155,7 +156,7 @@ class EncoderModule(L.LightningModule):
         return self._head_outputs(lambda: self.encoder(images), images.device)
 
     def _head_outputs(self, run: Callable[[], tuple[Tensor, Tensor]], device: torch.device) -> tuple[Tensor, Tensor]:
-        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=self.hparams.bf16):
+        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=training_bf16(self.hparams.bf16, device)):
             mu, logvar = run()
         mu, logvar = mu.float(), logvar.float()
         # x0 rather than zeros_like keeps the unused head in the graph (DDP wants every parameter used).

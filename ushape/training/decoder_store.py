@@ -20,6 +20,7 @@ from filelock import FileLock
 from omegaconf import DictConfig, OmegaConf
 
 from ushape.decoder.artifacts import DONE_FILE, folder_problem
+from ushape.decoder.precision import accelerator_device, training_bf16
 from ushape.workspace import IDENTITY_FILE
 
 log = logging.getLogger(__name__)
@@ -51,6 +52,12 @@ def decoder_identity(cfg: DictConfig, legacy: bool = False) -> dict[str, Any]:
     # Left out as the trainer's precision always was, so decoders trained before stage1.precision
     # existed (all fp32 on CPU) are still found.
     stage1.pop("precision", None)
+    # bf16 "auto" is hashed as what it is on the trainer's device: false without AMX, the identity of
+    # the fp32 decoders trained before "auto" existed; true where the training autocasts.
+    device = accelerator_device(str((cfg.get("trainer") or {}).get("accelerator", "auto")))
+    for section in ("module", "latent_optim"):
+        if (stage1.get(section) or {}).get("bf16") == "auto":
+            stage1[section]["bf16"] = training_bf16("auto", device)
     for (section, key), value in _IMPLIED_STAGE1.items():
         if (stage1.get(section) or {}).get(key) == value:
             stage1[section].pop(key)

@@ -20,9 +20,10 @@ from ushape.data.layout import WorldIndex
 from ushape.decoder.artifacts import codes_file, load_codes
 from ushape.decoder.basis import ensure_basis
 from ushape.decoder.fit import fit_decoder
+from ushape.decoder.precision import accelerator_device, training_bf16
 from ushape.decoder.recode import ensure_codes
 from ushape.encoder.fit import fit_encoder
-from ushape.errors import bad_input_exit
+from ushape.errors import InputError, bad_input_exit
 from ushape.training.decoder_store import decoder_dir_for, ensure_decoder, legacy_decoder_dir_for
 from ushape.training.demo_meshes import demo_digest, write_demo_meshes
 from ushape.training.interrupts import resume_command, resume_exit, stopping_signal, watch_signals
@@ -83,6 +84,7 @@ def _train(cfg: DictConfig, out_dir: Path, main: bool) -> float | None:
     L.seed_everything(cfg.seed, workers=True)
     started = time.time()
 
+    resolve_training_bf16(cfg)
     world = build_world(cfg)
     decoder_dir = ensure_decoder(cfg, lambda folder: train_decoder(cfg, world, folder), main=main)
     summary: dict[str, Any] = {"stage": cfg.stage, "world": str(world.root.resolve()), "decoder_dir": str(decoder_dir)}
@@ -121,6 +123,27 @@ def _train(cfg: DictConfig, out_dir: Path, main: bool) -> float | None:
     atomic.write_json(out_dir / RUN_SUMMARY, summary)
     print_summary(summary, out_dir)
     return metric
+
+
+# The bf16 autocast switches of training: true, false or "auto" (where precision auto picks bf16).
+TRAINING_BF16_KEYS = ("stage1.module.bf16", "stage1.latent_optim.bf16", "stage2.module.bf16")
+
+
+def resolve_training_bf16(cfg: DictConfig) -> None:
+    """Write true / false over every "auto" bf16 switch, for the trainer's device, before anything reads them.
+
+    The stage-1 decoder's identity (its folder's hash) then names the precision it was trained in: on a
+    CPU without AMX "auto" is false, the same identity as the fp32 decoders trained before "auto" existed.
+    """
+    device = accelerator_device(str(cfg.trainer.get("accelerator", "auto")))
+    for key in TRAINING_BF16_KEYS:
+        value = OmegaConf.select(cfg, key)
+        if value is None:
+            continue
+        try:
+            OmegaConf.update(cfg, key, training_bf16(value, device))
+        except ValueError as err:
+            raise InputError(f"{key}: {err}") from None
 
 
 def build_world(cfg: DictConfig) -> WorldIndex:
