@@ -20,6 +20,12 @@ TINY = TrainingSettings(
     latent_samples=100,
     feature_views=2,
     threads=(1,),
+    world_shapes=1,
+    world_workers=(1, 2),
+    world_samples=1000,
+    world_views=1,
+    world_image_size=32,
+    world_mesh_resolution=32,
 )
 
 
@@ -27,6 +33,7 @@ def test_every_row_is_timed_at_each_precision_and_written(tmp_path):
     rows = training_rows(TINY)
     names = {(r.name, r.precision) for r in rows}
     fp32 = {
+        "world build (procedural chairs)",
         "gemm (one decoder layer)",
         "stage-1 bare loop",
         "stage-1 Lightning step",
@@ -35,9 +42,12 @@ def test_every_row_is_timed_at_each_precision_and_written(tmp_path):
         "feature extraction (Lite0, 128 px)",
     }
     assert {(name, "fp32") for name in fp32} <= names
-    bf16 = fp32 - {"stage-1 loader alone"} if bf16_rows_in_full() else {"gemm (one decoder layer)", "stage-1 bare loop"}
+    bf16_full = fp32 - {"stage-1 loader alone", "world build (procedural chairs)"}
+    bf16 = bf16_full if bf16_rows_in_full() else {"gemm (one decoder layer)", "stage-1 bare loop"}
     assert {n for n, p in names if p == "bf16"} == bf16
-    assert all(r.rate > 0 and r.threads == 1 for r in rows)
+    worlds = [r for r in rows if r.name == "world build (procedural chairs)"]
+    assert [r.threads for r in worlds] == [1, 2] and worlds[0].ratio is None and worlds[1].floor == "1 worker / 2"
+    assert all(r.rate > 0 for r in rows) and all(r.threads == 1 for r in rows if r not in worlds)
     step = next(r for r in rows if r.name == "stage-1 Lightning step" and r.precision == "fp32")
     assert step.floor == "bare loop" and step.ratio > 0
     about = machine()

@@ -7,6 +7,7 @@
     python bench.py --precision-only      only the mesh with uncertainty in fp32 / bf16 / auto, with the contract
     python bench.py --loaders-world DIR   also the loaders' per-core rates against a GPU's needs (a world folder)
     python bench.py --training            training against its floors (ushape.bench.training)
+    python bench.py --training-contract   bf16 stage-1 training against fp32 seeds (ushape.bench.training_contract)
 
 Untrained decoders are fitted to a procedural chair first (--fit-steps, cached), so coarse-to-fine,
 the narrow band and the depth rows see one surface as with a trained decoder. The 8 x 512 decoder's
@@ -74,6 +75,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="instead: the training bench (stage-1 step against its bare-loop and GEMM floors, the loader, latent "
         "optimisation, feature extraction; 1 and 2 threads, fp32 and bf16); with --quick a smoke run",
     )
+    parser.add_argument(
+        "--training-contract",
+        action="store_true",
+        help="instead: a fixed stage-1 run on a tiny procedural world in bf16 against 3 fp32 seeds (final loss, "
+        "held-out IoU within their spread); with --quick a smoke run",
+    )
     parser.add_argument("--out", default=None, help=f"report file (default {DEFAULT_OUT_DIR}/bench_<date>.md)")
     return parser
 
@@ -92,6 +99,31 @@ def training_main(args: argparse.Namespace) -> int:
     return 0
 
 
+def contract_main(args: argparse.Namespace) -> int:
+    """`bench.py --training-contract`: bf16 training against fp32 seeds, printed and written (.md and .json)."""
+    import tempfile
+
+    from ushape.bench.training import machine
+    from ushape.bench.training_contract import (
+        ContractSettings,
+        contract_report,
+        run_contract,
+        write_contract_report,
+    )
+
+    about = machine()
+    quick = ContractSettings(steps=20, latent_iterations=10, latent_samples=200)
+    settings = quick if args.quick else ContractSettings()
+    print(f"training bf16 contract on {about['cpu']}; precision auto picks {about['auto']}")
+    started = time.time()
+    with tempfile.TemporaryDirectory() as tmp:
+        verdict = run_contract(Path(tmp), settings)
+    out = Path(args.out) if args.out else DEFAULT_OUT_DIR / f"training_contract_{time.strftime('%Y-%m-%d')}.md"
+    write_contract_report(verdict, settings, about, out)
+    print(contract_report(verdict, settings, about) + f"\nTotal {time.time() - started:.0f} s; written to {out}")
+    return 0
+
+
 def loader_section(world: str, quick: bool) -> str:
     """The paper batch's loaders timed in this process (per core) on `world`, as a markdown table."""
     one = stage1_rate(world, batches=3 if quick else 10)
@@ -103,6 +135,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.training:
         return training_main(args)
+    if args.training_contract:
+        return contract_main(args)
     if args.deepsdf_fraction <= 0 or args.deepsdf_fraction > 1:
         raise InputError(f"--deepsdf-fraction must be in (0, 1], got {args.deepsdf_fraction}")
     resolution = args.resolution or (32 if args.quick else 128)

@@ -10,7 +10,9 @@ Each row is timed at 1 and 2 threads, in fp32 and, where torch offers it on this
     waiting for it;
   - latent optimisation: the val/test codes' fit (`optimise_codes`) at the configured iterations and
     samples, per code;
-  - feature extraction: the frozen Lite0 backbone's pooled stage features at 128 px, views/s.
+  - feature extraction: the frozen Lite0 backbone's pooled stage features at 128 px, views/s;
+  - world build: the quickstart's procedural world (SDF samples, renders, meshes) per shape, with its
+    builder at `num_workers` 1 and 2 (processes, each on one thread; the row's threads column).
 A row's `ratio` is its time per unit over its floor's (1.0 = at the floor). Nothing here asserts a time:
 the table is printed and written for docs/benchmark.md.
 """
@@ -55,6 +57,13 @@ class TrainingSettings:
     latent_samples: int = 2000
     feature_views: int = 64
     threads: tuple[int, ...] = (1, 2)
+    # The world-build rows: the quickstart world's per-shape settings (conf/data/synthetic_quickstart.yaml).
+    world_shapes: int = 4
+    world_workers: tuple[int, ...] = (1, 2)
+    world_samples: int = 50_000
+    world_views: int = 12
+    world_image_size: int = 137
+    world_mesh_resolution: int = 192
 
 
 @dataclass(frozen=True)
@@ -226,6 +235,47 @@ def feature_views(settings: TrainingSettings, bf16: bool) -> float:
     return per_second(run, settings.feature_views)
 
 
+def world_shapes_per_second(root: Path, settings: TrainingSettings, workers: int) -> float:
+    """Shapes/s of the procedural chairs world's build (samples, renders, meshes) with `workers` processes."""
+    from ushape.data.world import SyntheticWorld
+
+    world = SyntheticWorld(
+        "chairs",
+        str(root),
+        n_train=settings.world_shapes,
+        n_val=0,
+        n_test=0,
+        samples_per_shape=settings.world_samples,
+        n_views=settings.world_views,
+        image_size=settings.world_image_size,
+        mesh_resolution=settings.world_mesh_resolution,
+        num_workers=workers,
+    )
+    start = time.perf_counter()
+    world.build()
+    return settings.world_shapes / (time.perf_counter() - start)
+
+
+def world_rows(root: Path, settings: TrainingSettings) -> list[TrainingRow]:
+    """The world build at each worker count, against one worker's rate (the floor a second core divides)."""
+    rates = {n: world_shapes_per_second(root / f"world_{n}", settings, n) for n in settings.world_workers}
+    one = rates.get(1)
+    return [
+        TrainingRow(
+            "world build (procedural chairs)",
+            n,
+            "fp32",
+            rate,
+            "shapes/s",
+            ratio=None if n == 1 or one is None else one * n / rate,
+            floor=None if n == 1 or one is None else f"1 worker / {n}",
+            note=f"{1 / rate:.1f} s a shape: {settings.world_samples:,} SDF samples, {settings.world_views} "
+            f"views at {settings.world_image_size} px, mesh at {settings.world_mesh_resolution}^3",
+        )
+        for n, rate in rates.items()
+    ]
+
+
 def bf16_rows_in_full() -> bool:
     """Whether bf16 gets every row: where `precision=auto` picks it (AMX). Elsewhere bf16 is emulated (7-60x
     slower than fp32 on AVX2 and AVX-512 without AMX), so only the GEMM and the bare loop show by how much."""
@@ -242,6 +292,7 @@ def training_rows(settings: TrainingSettings = TrainingSettings()) -> list[Train
             with threads(n):
                 rows += precision_rows(world, settings, n, "fp32", False, width, batch)
                 rows += precision_rows(world, settings, n, "bf16", True, width, batch, full=bf16_rows_in_full())
+        rows += world_rows(Path(tmp), settings)
     return rows
 
 
@@ -359,4 +410,15 @@ def write_training_report(rows: list[TrainingRow], about: dict[str, object], out
 
 def quick_settings() -> TrainingSettings:
     """A smoke run of every row in seconds (its figures mean little)."""
-    return TrainingSettings(shapes=16, steps=4, warmup=2, latent_codes=2, latent_iterations=5, feature_views=4)
+    return TrainingSettings(
+        shapes=16,
+        steps=4,
+        warmup=2,
+        latent_codes=2,
+        latent_iterations=5,
+        feature_views=4,
+        world_shapes=2,
+        world_samples=5000,
+        world_views=2,
+        world_mesh_resolution=64,
+    )
