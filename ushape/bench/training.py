@@ -153,29 +153,39 @@ def random_world(root: Path, settings: TrainingSettings) -> Path:
     return root
 
 
-def lightning_steps(world: Path, settings: TrainingSettings, bf16: bool) -> float:
-    """Steps/s of `AutoDecoderModule` under a Lightning Trainer (loader included), warm."""
-    import lightning as L
-
+def small_module(latent_size: int, module: dict, num_shapes: int):
+    """The quickstart's stage-1 LightningModule (4 x 256 decoder) with `module`'s settings."""
     from ushape.decoder.fit import build_module
 
+    config = {"_target_": "ushape.decoder.network.DeepSDFDecoder", "latent_size": latent_size}
+    return build_module({**config, **SMALL_DECODER, "output_tanh": True}, module, num_shapes)
+
+
+def quiet_trainer(steps: int):
+    """A Lightning Trainer on the CPU for `steps` steps, with no logger, checkpoint, progress bar or validation."""
+    import lightning as L
+
+    return L.Trainer(
+        accelerator="cpu",
+        max_steps=steps,
+        max_epochs=-1,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        limit_val_batches=0,
+        num_sanity_val_steps=0,
+    )
+
+
+def lightning_steps(world: Path, settings: TrainingSettings, bf16: bool) -> float:
+    """Steps/s of `AutoDecoderModule` under a Lightning Trainer (loader included), warm."""
     torch.manual_seed(0)
     data = SDFDataModule(world, settings.samples_per_shape, settings.shapes_per_batch, 0, val_num_shapes=0)
-    config = {"_target_": "ushape.decoder.network.DeepSDFDecoder", "latent_size": settings.latent_size}
-    model = build_module({**config, **SMALL_DECODER, "output_tanh": True}, {"bf16": bf16}, data.num_shapes)
+    model = small_module(settings.latent_size, {"bf16": bf16}, data.num_shapes)
 
     def fit(steps: int) -> None:
-        trainer = L.Trainer(
-            accelerator="cpu",
-            max_steps=steps,
-            logger=False,
-            enable_checkpointing=False,
-            enable_progress_bar=False,
-            enable_model_summary=False,
-            limit_val_batches=0,
-            num_sanity_val_steps=0,
-        )
-        trainer.fit(model, datamodule=data)
+        quiet_trainer(steps).fit(model, datamodule=data)
 
     fit(settings.warmup)  # reads every shape's samples once (the cache a second epoch finds)
     start = time.perf_counter()

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from ushape import atomic
-from ushape.bench.training import SMALL_DECODER
+from ushape.bench.training import quiet_trainer, small_module
 from ushape.data.sdf_dataset import SDFSamplesDataset
 from ushape.decoder.datamodule import SDFDataModule
 from ushape.decoder.latent_optim import optimise_codes
@@ -106,26 +106,12 @@ def train_run(world: Path, settings: ContractSettings, seed: int, bf16: bool) ->
     """One fixed stage-1 run and its two figures (see the module docstring)."""
     import lightning as L
 
-    from ushape.decoder.fit import build_module
-
     started = time.perf_counter()
     L.seed_everything(seed, workers=True)
     data = SDFDataModule(world, settings.samples_per_shape, settings.shapes_per_batch, 0, val_num_shapes=0)
-    config = {"_target_": "ushape.decoder.network.DeepSDFDecoder", "latent_size": settings.latent_size}
     module = {"bf16": bf16, "lr_net": settings.lr_net, "lr_codes": settings.lr_codes, "code_reg_warmup_epochs": 1}
-    model = build_module({**config, **SMALL_DECODER, "output_tanh": True}, module, data.num_shapes)
-    trainer = L.Trainer(
-        accelerator="cpu",
-        max_steps=settings.steps,
-        max_epochs=-1,
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        limit_val_batches=0,
-        num_sanity_val_steps=0,
-    )
-    trainer.fit(model, datamodule=data)
+    model = small_module(settings.latent_size, module, data.num_shapes)
+    quiet_trainer(settings.steps).fit(model, datamodule=data)
     model.eval()
     loss = training_loss(model, SDFSamplesDataset(world, "train", samples_per_shape=2))
     iou = heldout_iou(model.decoder, world, settings, seed, bf16)
