@@ -26,6 +26,8 @@ def test_an_exported_run_loads_by_name_and_encodes_as_the_run(tiny_run, tmp_path
     assert json.loads((folder / "splits.json").read_text())["test"] == ["test_0", "test_1"]
     record = json.loads((folder / "model.json").read_text())
     assert record["name"] == "tiny" and record["category"] == "chairs" and record["image_size"] == 16
+    latent = load_predictor(tiny_run["run"]).latent_size
+    assert record["latent_size"] == latent and f"a Gaussian over the {latent}-d code" in card
     monkeypatch.setattr(pretrained, "PRETRAINED_DIR", tmp_path)
     assert pretrained.available_models() == ["tiny"]
     shipped, run = pretrained.load_pretrained("pretrained:tiny", temperature=False), load_predictor(tiny_run["run"])
@@ -66,3 +68,13 @@ def test_a_model_file_that_does_not_fit_is_named(tiny_run, tmp_path):
     torch.save(blob, folder / "encoder.ckpt")
     with pytest.raises(InputError, match="does not fit its model"):
         pretrained.load_model_folder(folder)
+
+
+def test_a_records_update_rewrites_the_card_and_leaves_the_weights(tiny_run, tmp_path):
+    folder = pretrained.export_pretrained(tiny_run["run"], "tiny", tmp_path, category="chairs")
+    weights = (folder / "encoder.ckpt").read_bytes()
+    merged = pretrained.update_record(folder, figures={"ceiling, 100 test shapes": "0.7"}, recipe="200 epochs")
+    assert merged["name"] == "tiny" and json.loads((folder / "model.json").read_text()) == merged
+    card = (folder / "MODEL_CARD.md").read_text()
+    assert "| ceiling, 100 test shapes | 0.7 |" in card and "200 epochs" in card and "Not measured yet" not in card
+    assert (folder / "encoder.ckpt").read_bytes() == weights

@@ -208,6 +208,7 @@ def export_pretrained(run: str | Path, name: str, out_root: str | Path = PRETRAI
             "image_size": image_size,
             "mask_mode": mask_mode,
             "r2n2_frame": frame_record,
+            "latent_size": predictor.latent_size,
             "source_run": str(run),
             **record,
         },
@@ -221,6 +222,17 @@ def export_pretrained(run: str | Path, name: str, out_root: str | Path = PRETRAI
     shutil.rmtree(folder, ignore_errors=True)
     staging.rename(folder)
     return folder
+
+
+def update_record(folder: str | Path, **record: Any) -> dict[str, Any]:
+    """Merge `record` (figures, recipe, latent_size, ...) into a shipped model's model.json and write its
+    MODEL_CARD.md again from it, leaving the weights and fits as they are. Returns the merged record."""
+    folder = Path(folder)
+    merged = {**atomic.read_json_object(folder / MODEL_FILE, DAMAGED), **record}
+    atomic.write_json(folder / MODEL_FILE, merged)
+    splits = atomic.read_json_object(folder / SPLITS_FILE, DAMAGED) if (folder / SPLITS_FILE).is_file() else None
+    atomic.write_text(folder / CARD_FILE, model_card(merged, splits))
+    return merged
 
 
 def world_splits(predictor: Predictor) -> dict[str, list[str]] | None:
