@@ -22,11 +22,16 @@ RENDERS = SHARED / "real_sample" / "ShapeNetRendering" / CHAIR[0] / CHAIR[1] / "
 VOXELS = SHARED / "ShapeNetVox32" / CHAIR[0] / CHAIR[1] / "model.binvox"
 
 
-def test_the_chairs_model_ships_with_its_card_and_fits():
-    folder = PRETRAINED_DIR / "chairs"
-    for name in ("model.json", "encoder.ckpt", "decoder/decoder.pt", "temperature.json", "MODEL_CARD.md"):
-        assert (folder / name).is_file(), name
-    assert "research and non-commercial" in (folder / "MODEL_CARD.md").read_text()
+@pytest.mark.parametrize("name", ["chairs", "tables"])
+def test_each_category_ships_a_model_with_its_card_fits_and_viewpoint_head(name):
+    folder = PRETRAINED_DIR / name
+    fits = ("temperature.json", "refinement_calibration.json", "viewpoint.pt")
+    for file in ("model.json", "encoder.ckpt", "decoder/decoder.pt", "splits.json", "MODEL_CARD.md", *fits):
+        assert (folder / file).is_file(), file
+    card = (folder / "MODEL_CARD.md").read_text()
+    assert "research and non-commercial" in card and f"Category: {name}" in card and "(not recorded)" not in card
+    record = json.loads((folder / "model.json").read_text())
+    assert record["category"] == name and record["latent_size"] == load_pretrained(name).latent_size
     assert sum(p.stat().st_size for p in PRETRAINED_DIR.rglob("*") if p.is_file()) < 30e6  # the package budget
 
 
