@@ -15,8 +15,11 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 VOXELS=${VOXELS:-$(realpath ../shared/data/ShapeNetVox32)}
 THREADS=${THREADS:-$(nproc)}
+# fp32 throughout, as the shipped models were trained (bf16 "auto" would train differently on an AMX CPU,
+# and the committed stage 1 would be restored into a folder named for a bf16 decoder).
 COMMON=(experiment=r2n2_cpu_2h "data.voxels_root=$VOXELS" data.n_val=100 data.n_test=100 data.num_workers=0
-  stage1.latent_optim.samples_per_iter=1000)
+  stage1.latent_optim.samples_per_iter=1000 stage1.module.bf16=false stage1.latent_optim.bf16=false
+  stage2.module.bf16=false)
 
 decoder_dir() {  # the stage-1 folder train.py uses for this category's config
   .venv/bin/python - "$1" "${COMMON[@]}" <<'EOF'

@@ -78,3 +78,14 @@ def test_a_records_update_rewrites_the_card_and_leaves_the_weights(tiny_run, tmp
     card = (folder / "MODEL_CARD.md").read_text()
     assert "| ceiling, 100 test shapes | 0.7 |" in card and "200 epochs" in card and "Not measured yet" not in card
     assert (folder / "encoder.ckpt").read_bytes() == weights
+
+
+def test_exporting_the_same_run_again_keeps_its_recorded_figures_and_another_run_does_not(tiny_run, tmp_path):
+    folder = pretrained.export_pretrained(tiny_run["run"], "tiny", tmp_path, category="chairs")
+    pretrained.update_record(folder, figures={"ceiling": "0.7"}, recipe="200 epochs")
+    again = json.loads((pretrained.export_pretrained(tiny_run["run"], "tiny", tmp_path) / "model.json").read_text())
+    assert again["figures"] == {"ceiling": "0.7"} and again["recipe"] == "200 epochs" and again["category"] == "chairs"
+    assert "| ceiling | 0.7 |" in (folder / "MODEL_CARD.md").read_text()
+    checkpoint = str(tiny_run["run"] / "checkpoints" / "best.ckpt")
+    other = json.loads((pretrained.export_pretrained(checkpoint, "tiny", tmp_path) / "model.json").read_text())
+    assert "figures" not in other and "recipe" not in other

@@ -199,6 +199,7 @@ def export_pretrained(run: str | Path, name: str, out_root: str | Path = PRETRAI
         if (checkpoint.parent / fit).is_file():
             shutil.copy2(checkpoint.parent / fit, staging / fit)
     image_size, mask_mode = input_settings(blob, run_config(run_dir))
+    record = {**measured_record(folder, run), **record}
     frame = r2n2_frame_of(predictor)
     frame_record = None if frame is None else {"centre": frame[0].tolist(), "scale": frame[1]}
     atomic.write_json(
@@ -222,6 +223,19 @@ def export_pretrained(run: str | Path, name: str, out_root: str | Path = PRETRAI
     shutil.rmtree(folder, ignore_errors=True)
     staging.rename(folder)
     return folder
+
+
+# What a person wrote into a shipped model's record after exporting it (update_record): kept when the same run
+# is exported again (a rerun of notebooks/train_pretrained.sh), dropped for another run, whose figures differ.
+MEASURED_KEYS = ("category", "data", "recipe", "command", "figures")
+
+
+def measured_record(folder: Path, run: str | Path) -> dict[str, Any]:
+    """The measured and written parts of `folder`'s model.json where it was exported from `run`, else {}."""
+    if not (folder / MODEL_FILE).is_file():
+        return {}
+    old = atomic.read_json_object(folder / MODEL_FILE, DAMAGED)
+    return {k: old[k] for k in MEASURED_KEYS if k in old} if old.get("source_run") == str(run) else {}
 
 
 def update_record(folder: str | Path, **record: Any) -> dict[str, Any]:
