@@ -25,3 +25,6 @@ def test_the_demo_writes_one_page_with_every_view_count_and_mode(tiny_run, tmp_p
     assert positions == sorted(positions)  # one view first, fused before refined
     assert (out / "model-viewer-umd.min.js").is_file() and (out / "demo_colourbar.png").is_file()
     assert '"rotation std (deg)"' in page and '"rotation error (deg)"' in page
+    shape = read_split(root, "test")[0]
+    views = len(list((root / "renders" / shape).glob("*.png")))
+    assert views > 0 and page.count('<img class="view"') == views  # the input views as thumbnails

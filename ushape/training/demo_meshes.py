@@ -33,6 +33,7 @@ import trimesh
 from torch import Tensor
 
 from ushape import atomic
+from ushape.data.augment import read_image
 from ushape.data.layout import WorldIndex
 from ushape.decoder.artifacts import CodeTable
 from ushape.decoder.query import code_sdf_fn, frozen
@@ -146,9 +147,15 @@ def demo_page(out_dir: Path, world: WorldIndex, shape_id: str, scores: dict[str,
     write_colour_bar(bar, top)
     own = scores.get(OWN_CODE) or {}
     figures = {"shape": shape_id, **{f"own code {k}": v for k, v in own.items()}}
+    views = [on_white(read_image(path)) for path in view_files(world.root, shape_id)]
     return write_report(
-        out_dir, f"held-out {shape_id}: one view and all, fused and refined", scenes, (), bar, figures=figures
+        out_dir, f"held-out {shape_id}: one view and all, fused and refined", scenes, views, bar, figures=figures
     )
+
+
+def on_white(rgba: np.ndarray) -> np.ndarray:
+    """A straight RGBA image [H, W, 4] composited over white, as a render is seen. -> [H, W, 3]"""
+    return rgba[..., :3] * rgba[..., 3:] + (1.0 - rgba[..., 3:])
 
 
 def score_demo(
