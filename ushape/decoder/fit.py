@@ -30,6 +30,7 @@ from ushape.decoder.artifacts import (
 from ushape.decoder.autodecoder import AutoDecoderModule
 from ushape.decoder.datamodule import SDFDataModule
 from ushape.decoder.latent_optim import optimise_codes
+from ushape.decoder.warm_start import warm_start
 from ushape.workspace import CHECKPOINT_DIR, LAST_FILE
 
 log = logging.getLogger(__name__)
@@ -47,13 +48,15 @@ def fit_decoder(
     seed: int = 0,
     logger: Logger | bool | None = None,
     callbacks: Sequence[Callback] = (),
+    init_from: str | Path | None = None,
 ) -> Path:
     """Train stage 1 on the world's train split and write the decoder folder `out_dir`; returns it.
 
     decoder: `_target_` config of the network; module: AutoDecoderModule kwargs (num_shapes is
     filled from the data); trainer: lightning.Trainer kwargs (max_epochs, accelerator, ...);
     data: SDFDataModule kwargs; latent_optim: `optimise_codes` kwargs for the val/test codes.
-    logger None means TensorBoard under out_dir/tensorboard; False logs nothing.
+    logger None means TensorBoard under out_dir/tensorboard; False logs nothing. init_from: a finished decoder
+    folder whose weights and shared training codes the run starts from (`warm_start`), unless it resumes.
     """
     out_dir = Path(out_dir)
     if (out_dir / DONE_FILE).exists():
@@ -65,6 +68,9 @@ def fit_decoder(
     clock = TrainingClock()
     fitter = build_trainer(out_dir, model, trainer, checkpoint_every_n_epochs, logger, [clock, *callbacks])
     resume = resume_point(out_dir / CHECKPOINT_DIR, LAST_FILE)
+    if init_from is not None and resume is None:
+        datamodule.setup("fit")
+        warm_start(model, init_from, datamodule.train_set.shape_ids)
     fitter.fit(model, datamodule=datamodule, ckpt_path=str(resume) if resume else None)
     if fitter.interrupted:
         raise RuntimeError(f"stage-1 training was interrupted; rerun to resume from {out_dir / CHECKPOINT_DIR}")

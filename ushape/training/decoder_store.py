@@ -21,6 +21,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from ushape.decoder.artifacts import DONE_FILE, folder_problem
 from ushape.decoder.precision import accelerator_device, training_bf16
+from ushape.decoder.warm_start import init_fingerprint
 from ushape.workspace import IDENTITY_FILE
 
 log = logging.getLogger(__name__)
@@ -58,6 +59,12 @@ def decoder_identity(cfg: DictConfig, legacy: bool = False) -> dict[str, Any]:
     for section in ("module", "latent_optim"):
         if (stage1.get(section) or {}).get("bf16") == "auto":
             stage1[section]["bf16"] = training_bf16("auto", device)
+    # A warm start is named by the starting decoder's weights, not by where its folder lies; none: left out,
+    # the identity of every decoder trained before init_from existed.
+    if stage1.get("init_from") is None:
+        stage1.pop("init_from", None)
+    else:
+        stage1["init_from"] = init_fingerprint(stage1["init_from"])
     for (section, key), value in _IMPLIED_STAGE1.items():
         if (stage1.get(section) or {}).get(key) == value:
             stage1[section].pop(key)

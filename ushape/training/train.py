@@ -172,6 +172,7 @@ def train_decoder(cfg: DictConfig, world: WorldIndex, folder: Path) -> None:
         latent_optim=_plain(s1.latent_optim),
         checkpoint_every_n_epochs=s1.checkpoint_every_n_epochs,
         seed=cfg.seed,
+        init_from=s1.get("init_from"),
     )
 
 
