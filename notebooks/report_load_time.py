@@ -24,7 +24,11 @@ from pathlib import Path
 
 import aiohttp
 
-FLAGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader", "--use-angle=swiftshader"]
+import os
+
+FLAGS = os.environ.get(
+    "REPORT_FLAGS", "--headless=new --no-sandbox --disable-gpu --enable-unsafe-swiftshader --use-angle=swiftshader"
+).split()
 
 
 def free_port() -> int:
