@@ -185,6 +185,7 @@ def save_figures(
             showcase.shapes,
             settings.resolution,
             showcase.mc_samples,
+            seed=settings.seed,
         )
     for protocol in protocols:
         protocol.save_figures(run, settings, out_dir)

@@ -62,9 +62,19 @@ def render_uncertainty(mesh: trimesh.Trimesh, std: np.ndarray, image_size: int =
 
 
 def save_showcase(
-    run, encodings, out_dir: str | Path, group_size: int, n_shapes: int = 2, resolution: int = 64, n_samples: int = 10
+    run,
+    encodings,
+    out_dir: str | Path,
+    group_size: int,
+    n_shapes: int = 2,
+    resolution: int = 64,
+    n_samples: int = 10,
+    seed: int = 0,
 ) -> list[Path]:
-    """Save single-view and fused reconstructions with per-vertex std for the first n_shapes; returns the PNGs."""
+    """Save single-view and fused reconstructions with per-vertex std for the first n_shapes; returns the PNGs.
+
+    The Monte Carlo codes are drawn from a generator seeded with `seed`, so the pictures do not depend on what
+    the evaluation drew from torch's global generator before them (which protocols ran, in which order)."""
     from PIL import Image
 
     out = Path(out_dir) / SHOWCASE_DIR
@@ -83,7 +93,10 @@ def save_showcase(
             except EmptySurfaceError:
                 continue
             vertices = mesh.vertices.astype(np.float32)
-            std = vertex_uncertainty(decoder, code, code_var, torch.from_numpy(vertices), "mc", n_samples).numpy()
+            draws = torch.Generator().manual_seed(seed)
+            std = vertex_uncertainty(
+                decoder, code, code_var, torch.from_numpy(vertices), "mc", n_samples, generator=draws
+            ).numpy()
             stem = re.sub(r"[^A-Za-z0-9_.-]", "", f"{run.spec.label}_{group[0].shape_id}_{kind}")
             atomic.save_npz(out / f"{stem}.npz", vertices=vertices, faces=mesh.faces, std=std)
             png = out / f"{stem}.png"
