@@ -4,14 +4,14 @@ The contract `stage1.module.bf16: auto` is held to where it picks bf16 (AMX CPUs
 fixed stage-1 run on a tiny procedural world (the quickstart's 4 x 256 decoder, the real Lightning
 module and loader), the bf16 run's
 
-  - final training loss: clamped L1 + nothing else, over every training sample, evaluated in fp32 on the
-    trained weights and codes (deterministic: what the run learnt, not one batch's noise), and
+  - final training loss: the clamped L1 (no code regulariser) over every training sample, evaluated in
+    fp32 on the trained weights and codes (deterministic: what the run learnt, not one batch's noise), and
   - held-out IoU: the test shapes' codes latent-optimised (in the run's precision) against the frozen
     decoder, decoded at 32^3 against the true meshes,
 
 each sit within the spread (min to max) of the same figure over several fp32 seeds. Where bf16 is
-emulated (CPUs without AMX: 7-9x slower) the check still runs, slowly: its figures do not depend on
-the hardware's speed, only on bf16's rounding.
+emulated (CPUs without AMX: 17-122x slower on the AVX2 EPYC, docs/benchmark.md) the check still runs,
+slowly: its figures do not depend on the hardware's speed, only on bf16's rounding.
 """
 
 from __future__ import annotations
