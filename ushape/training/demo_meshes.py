@@ -35,6 +35,7 @@ from torch import Tensor
 from ushape import atomic
 from ushape.data.augment import read_image
 from ushape.data.layout import WorldIndex
+from ushape.data.rendering import on_white
 from ushape.decoder.artifacts import CodeTable
 from ushape.decoder.query import code_sdf_fn, frozen
 from ushape.encoder.datamodule import view_files
@@ -147,15 +148,13 @@ def demo_page(out_dir: Path, world: WorldIndex, shape_id: str, scores: dict[str,
     write_colour_bar(bar, top)
     own = scores.get(OWN_CODE) or {}
     figures = {"shape": shape_id, **{f"own code {k}": v for k, v in own.items()}}
-    views = [on_white(read_image(path)) for path in view_files(world.root, shape_id)]
+    # The views as a render is seen: over white (data.rendering's rule, in 8 bits), in [0, 1] for the thumbnails.
+    views = [
+        on_white(np.round(read_image(path) * 255).astype(np.uint8)) / 255.0 for path in view_files(world.root, shape_id)
+    ]
     return write_report(
         out_dir, f"held-out {shape_id}: one view and all, fused and refined", scenes, views, bar, figures=figures
     )
-
-
-def on_white(rgba: np.ndarray) -> np.ndarray:
-    """A straight RGBA image [H, W, 4] composited over white, as a render is seen. -> [H, W, 3]"""
-    return rgba[..., :3] * rgba[..., 3:] + (1.0 - rgba[..., 3:])
 
 
 def score_demo(
