@@ -63,6 +63,14 @@ FAST_TRAINER = {
     "enable_model_summary": False,
     "log_every_n_steps": 1,
 }
+# fit_decoder's settings for a few fast steps on the sphere world (trainer: FAST_TRAINER with max_epochs).
+FAST_FIT = dict(
+    module={"latent_size": 8, "val_every_n_epochs": 5},
+    data={"samples_per_shape": 64, "shapes_per_batch": 2},
+    latent_optim={"iterations": 2, "samples_per_iter": 16},
+    checkpoint_every_n_epochs=1,
+    logger=False,
+)
 
 
 @pytest.fixture(scope="session")

@@ -5,7 +5,7 @@ import json
 import lightning as L
 import pytest
 import torch
-from sphere_world import FAST_TRAINER, SPLITS
+from sphere_world import FAST_FIT, FAST_TRAINER, SPLITS
 
 from ushape.decoder.artifacts import load_codes, load_decoder
 from ushape.decoder.autodecoder import AutoDecoderModule, deepsdf_lr_factor
@@ -70,14 +70,9 @@ class EpochCounter(L.Callback):
 
 
 def test_resume_continues_the_epoch_count(sphere_world, tiny_decoder_config, tmp_path):
-    kwargs = dict(
-        module={"latent_size": 8, "val_every_n_epochs": 5},
-        data={"samples_per_shape": 64, "shapes_per_batch": 2},
-        latent_optim={"iterations": 2, "samples_per_iter": 16},
-        checkpoint_every_n_epochs=1,
-        logger=False,
+    out = fit_decoder(
+        sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 2}, **FAST_FIT
     )
-    out = fit_decoder(sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 2}, **kwargs)
     last = torch.load(out / "checkpoints" / "last.ckpt", weights_only=False)
     assert last["epoch"] == 1 and last["global_step"] == 2 * 2  # 4 shapes / 2 per batch = 2 steps per epoch
     (out / "DONE").unlink()  # as if the run had stopped before finishing
@@ -88,7 +83,7 @@ def test_resume_continues_the_epoch_count(sphere_world, tiny_decoder_config, tmp
         tiny_decoder_config,
         trainer={**FAST_TRAINER, "max_epochs": 3},
         callbacks=[counter],
-        **kwargs,
+        **FAST_FIT,
     )
     assert counter.started == [2]  # only the missing third epoch ran
     last = torch.load(out / "checkpoints" / "last.ckpt", weights_only=False)
@@ -166,21 +161,12 @@ def test_module_schedule_follows_deepsdf(tiny_decoder_config):
     assert all(codes == pytest.approx(2 * net) for net, codes in lrs)
 
 
-RESUME_KWARGS = dict(
-    module={"latent_size": 8, "val_every_n_epochs": 5},
-    data={"samples_per_shape": 64, "shapes_per_batch": 2},
-    latent_optim={"iterations": 2, "samples_per_iter": 16},
-    checkpoint_every_n_epochs=1,
-    logger=False,
-)
-
-
 def test_a_damaged_last_checkpoint_resumes_from_the_newest_intact_one(
     sphere_world, tiny_decoder_config, tmp_path, caplog
 ):
     """A truncated last.ckpt used to fail every rerun with a raw traceback while epoch=1-step=4.ckpt sat beside it."""
     out = fit_decoder(
-        sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 2}, **RESUME_KWARGS
+        sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 2}, **FAST_FIT
     )
     checkpoints = out / "checkpoints"
     assert sorted(p.name for p in checkpoints.iterdir()) == ["epoch=1-step=4.ckpt", "last.ckpt"]
@@ -195,7 +181,7 @@ def test_a_damaged_last_checkpoint_resumes_from_the_newest_intact_one(
             tiny_decoder_config,
             trainer={**FAST_TRAINER, "max_epochs": 3},
             callbacks=[counter],
-            **RESUME_KWARGS,
+            **FAST_FIT,
         )
     assert counter.started == [2]  # epochs 0-1 were kept, not retrained
     assert "last.ckpt is damaged" in caplog.text and "resuming from epoch=1-step=4.ckpt" in caplog.text
@@ -206,7 +192,7 @@ def test_a_damaged_last_checkpoint_resumes_from_the_newest_intact_one(
 def test_train_seconds_add_up_over_resumed_segments(sphere_world, tiny_decoder_config, tmp_path):
     """DONE's train_seconds counted only the last segment of a resumed stage 1."""
     out = fit_decoder(
-        sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 1}, **RESUME_KWARGS
+        sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 1}, **FAST_FIT
     )
     last = out / "checkpoints" / "last.ckpt"
     blob = torch.load(last, weights_only=False)
@@ -214,6 +200,6 @@ def test_train_seconds_add_up_over_resumed_segments(sphere_world, tiny_decoder_c
     blob["callbacks"][clock]["seconds"] = 5000.0  # as if the first segment had run for 5000 s
     torch.save(blob, last)
     (out / "DONE").unlink()
-    fit_decoder(sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 2}, **RESUME_KWARGS)
+    fit_decoder(sphere_world, tmp_path, tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 2}, **FAST_FIT)
     done = json.loads((out / "DONE").read_text())
     assert done["epochs"] == 2 and done["train_seconds"] >= 5000.0 and done["total_seconds"] >= done["train_seconds"]

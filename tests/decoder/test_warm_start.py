@@ -3,7 +3,7 @@
 import pytest
 import torch
 from omegaconf import OmegaConf
-from sphere_world import FAST_TRAINER
+from sphere_world import FAST_FIT, FAST_TRAINER
 
 from ushape.decoder.artifacts import CodeTable, codes_file, load_codes, load_decoder, save_codes
 from ushape.decoder.autodecoder import AutoDecoderModule
@@ -12,19 +12,11 @@ from ushape.decoder.warm_start import init_fingerprint, warm_start
 from ushape.errors import InputError
 from ushape.training.decoder_store import decoder_dir_for
 
-KWARGS = dict(
-    module={"latent_size": 8, "val_every_n_epochs": 5},
-    data={"samples_per_shape": 64, "shapes_per_batch": 2},
-    latent_optim={"iterations": 2, "samples_per_iter": 16},
-    checkpoint_every_n_epochs=1,
-    logger=False,
-)
-
 
 @pytest.fixture
 def finished(sphere_world, tiny_decoder_config, tmp_path):
     return fit_decoder(
-        sphere_world, tmp_path / "first", tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 2}, **KWARGS
+        sphere_world, tmp_path / "first", tiny_decoder_config, trainer={**FAST_TRAINER, "max_epochs": 2}, **FAST_FIT
     )
 
 
@@ -36,6 +28,8 @@ def test_the_decoder_and_the_shared_shapes_codes_are_taken_and_new_shapes_keep_t
     module = AutoDecoderModule(decoder=tiny_decoder_config, num_shapes=3, latent_size=8)
     fresh = module.codes.weight.detach().clone()
     assert warm_start(module, finished, ids) == 2
+    # Copies, not computations: the taken weights and codes are the stored tensors themselves, bit for bit on
+    # any CPU, and the new shape's row is the untouched draw.
     assert torch.equal(module.codes.weight[0], trained.codes[1]) and torch.equal(
         module.codes.weight[2], trained.codes[0]
     )
@@ -64,7 +58,7 @@ def test_a_warm_run_trains_from_the_folder_and_its_identity_names_the_weights_no
         tiny_decoder_config,
         trainer={**FAST_TRAINER, "max_epochs": 1},
         init_from=finished,
-        **KWARGS,
+        **FAST_FIT,
     )
     assert (out / "DONE").is_file() and len(load_codes(out / codes_file("train")).shape_ids) == 4
     copy = tmp_path / "copy"

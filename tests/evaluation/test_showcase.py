@@ -21,5 +21,6 @@ def test_the_showcase_std_depends_on_its_seed_not_on_the_global_generator(sphere
         return [np.load(p.with_suffix(".npz"))["std"] for p in pngs]
 
     first, second, other = stds(tmp_path / "a", 1, 0), stds(tmp_path / "b", 2, 0), stds(tmp_path / "c", 1, 5)
+    # One code path, batching and thread count in one process, the same seed: the same draws, bit for bit.
     assert all(np.array_equal(a, b) for a, b in zip(first, second))
     assert not all(np.allclose(a, c) for a, c in zip(first, other))
