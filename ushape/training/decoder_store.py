@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
+import torch
 from filelock import FileLock
 from omegaconf import DictConfig, OmegaConf
 
@@ -55,7 +56,7 @@ def decoder_identity(cfg: DictConfig, legacy: bool = False) -> dict[str, Any]:
     stage1.pop("precision", None)
     # bf16 "auto" is hashed as what it is on the trainer's device: false without AMX, the identity of
     # the fp32 decoders trained before "auto" existed; true where the training autocasts.
-    device = accelerator_device(str((cfg.get("trainer") or {}).get("accelerator", "auto")))
+    device = trainer_device(cfg)
     for section in ("module", "latent_optim"):
         if (stage1.get(section) or {}).get("bf16") == "auto":
             stage1[section]["bf16"] = training_bf16("auto", device)
@@ -81,6 +82,11 @@ def decoder_identity(cfg: DictConfig, legacy: bool = False) -> dict[str, Any]:
         "stage1": stage1,
         "seed": int(cfg.seed),
     }
+
+
+def trainer_device(cfg: DictConfig) -> torch.device:
+    """The device the config's trainer trains on (its `accelerator`; none given: "auto")."""
+    return accelerator_device(str((cfg.get("trainer") or {}).get("accelerator", "auto")))
 
 
 def identity_hash(identity: Mapping[str, Any]) -> str:

@@ -20,11 +20,11 @@ from ushape.data.layout import WorldIndex
 from ushape.decoder.artifacts import codes_file, load_codes
 from ushape.decoder.basis import ensure_basis
 from ushape.decoder.fit import fit_decoder
-from ushape.decoder.precision import accelerator_device, training_bf16
+from ushape.decoder.precision import training_bf16
 from ushape.decoder.recode import ensure_codes
 from ushape.encoder.fit import fit_encoder
 from ushape.errors import InputError, bad_input_exit
-from ushape.training.decoder_store import decoder_dir_for, ensure_decoder, legacy_decoder_dir_for
+from ushape.training.decoder_store import decoder_dir_for, ensure_decoder, legacy_decoder_dir_for, trainer_device
 from ushape.training.demo_meshes import demo_digest, write_demo_meshes
 from ushape.training.interrupts import resume_command, resume_exit, stopping_signal, watch_signals
 from ushape.training.summary import discard_if_bookkeeping_only, print_config, print_summary
@@ -135,7 +135,7 @@ def resolve_training_bf16(cfg: DictConfig) -> None:
     The stage-1 decoder's identity (its folder's hash) then names the precision it was trained in: on a
     CPU without AMX "auto" is false, the same identity as the fp32 decoders trained before "auto" existed.
     """
-    device = accelerator_device(str(cfg.trainer.get("accelerator", "auto")))
+    device = trainer_device(cfg)
     for key in TRAINING_BF16_KEYS:
         value = OmegaConf.select(cfg, key)
         if value is None:
