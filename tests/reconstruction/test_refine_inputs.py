@@ -142,7 +142,9 @@ def test_refine_size_below_four_rays_is_refused(run, render, tmp_path, capsys, s
 def test_an_all_white_or_all_black_mask_is_a_named_fallback_not_refined(run, render, tmp_path, capsys):
     image, K, w2c = render
     side = Image.open(image).size[0]
-    cameras = camera_file(tmp_path / "cams.npz", K, w2c)
+    # the masks passed win over masks stored in the camera file (here good ones, which would refine)
+    outline = np.asarray(Image.open(image).convert("RGBA"))[None, ..., 3] > 0
+    cameras = camera_file(tmp_path / "cams.npz", K, w2c, masks=outline)
     for level, named in [(255, "% object: it draws no outline"), (0, "empty mask")]:
         mask = tmp_path / f"mask{level}.png"
         Image.fromarray(np.full((side, side), level, np.uint8)).save(mask)

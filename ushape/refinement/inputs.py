@@ -7,8 +7,8 @@ Cameras, in this order of precedence:
   - a render of our world (renders/<id>/NN.png with views.npz beside it): its own camera, mask and depth;
   - an R2N2 render (rendering/NN.png with rendering_metadata.txt beside it): the camera of its metadata row,
     with the object placed in R2N2's frame as the model's training shapes typically are (`typical_r2n2_frame`).
-Masks, where the camera file has none: the mask files passed (one per image, white = object), else the
-image's alpha. An image with no camera is returned as None: the refinement skips it, saying so.
+Masks: the mask files passed (one per image, white = object), else the camera file's or views.npz's stored
+masks, else the image's alpha. An image with no camera is returned as None: the refinement skips it, saying so.
 """
 
 from __future__ import annotations
@@ -77,10 +77,10 @@ def camera_file_views(
     views = []
     for i, image in enumerate(images):
         where = f"camera file {cameras}, view {i} ({Path(image).name})"
-        if "masks" in data:
-            mask, mask_source = torch.as_tensor(data["masks"][i]).float(), f"{cameras}'s masks[{i}]"
-        elif masks is not None:
+        if masks is not None:  # the masks passed win over stored ones, as for a render's views.npz
             mask, mask_source = image_mask(masks[i], from_alpha=False), str(masks[i])
+        elif "masks" in data:
+            mask, mask_source = torch.as_tensor(data["masks"][i]).float(), f"{cameras}'s masks[{i}]"
         else:
             mask, mask_source = image_mask(image), f"{Path(image).name}'s alpha"
         depth = torch.as_tensor(data["depth"][i]).float() if "depth" in data else None
