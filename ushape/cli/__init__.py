@@ -56,9 +56,11 @@ def main(argv: Sequence[str] | None = None, prog: str | None = None) -> int:
         with reporting_bad_input():  # one line and exit code 2, whichever command it comes from
             return _run(name, rest, prog)
     except KeyboardInterrupt:
-        # Every file is written atomically and each stage resumes: what was finished is kept.
+        # Every file is written atomically: what was finished is kept whole, what was cut short is not written.
+        # Training and evaluation resume from it; a fit or reconstruction that was cut short runs again.
         print(
-            f"\ninterrupted: {prog or 'ushape ' + name} stopped; finished files are kept, rerun to resume",
+            f"\ninterrupted: {prog or 'ushape ' + name} stopped; files already written are kept whole, "
+            "nothing half-written; rerun the command (training and eval.py go on from what finished)",
             file=sys.stderr,
         )
         return EXIT_INTERRUPTED
