@@ -4,7 +4,7 @@ depth maps of an earlier 3-view run)."""
 
 from __future__ import annotations
 
-import os
+import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
@@ -30,15 +30,19 @@ OUTPUT_PATTERNS = (
 
 def check_out_dir(path: str | Path) -> Path:
     """`path` if a reconstruction can write there (an existing folder, or one that can be made): an InputError
-    naming it otherwise. Makes nothing."""
+    naming it otherwise. Leaves nothing behind (its write test is a temporary file, gone at once)."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise InputError(f"--out {path} is a file, not a folder: pass a folder to write the reconstruction into")
     existing = next(p for p in (path, *path.absolute().parents) if p.exists())
     if not existing.is_dir():
         raise InputError(f"--out {path}: {existing} is a file, so the folder cannot be made there")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise InputError(f"--out {path}: {existing} is not writable; pass a folder you can write to")
+    try:  # a real write: os.access cannot see a read-only file system, /proc or a root-squashed share
+        tempfile.TemporaryFile(dir=existing).close()
+    except OSError as err:
+        raise InputError(
+            f"--out {path}: {existing} is not writable ({err.strerror}); pass a folder you can write to"
+        ) from None
     return path
 
 
@@ -47,14 +51,16 @@ def claimed(path: str | Path) -> Iterator[Path]:
     """The folder, made and held for one run: another run on it is refused (an InputError) while this one
     writes, and an earlier run's outputs are removed first."""
     path = check_out_dir(path)
-    path.mkdir(parents=True, exist_ok=True)
     lock = FileLock(str(path / LOCK_FILE), timeout=0)
     try:
+        path.mkdir(parents=True, exist_ok=True)
         lock.acquire()
-    except Timeout:
+    except Timeout:  # an OSError too: caught first
         raise InputError(
             f"another reconstruction is writing {path} now ({LOCK_FILE} is held): wait for it, or pass another --out"
         ) from None
+    except OSError as err:  # the folder changed since check_out_dir
+        raise InputError(f"--out {path} cannot be written ({err.strerror}): pass a folder you can write to") from None
     try:
         for pattern in OUTPUT_PATTERNS:  # the summary first: it must never list files that are gone
             for old in sorted(path.glob(pattern)):
