@@ -10,6 +10,14 @@ cannot fetch a file beside it), coloured by its std; the toggle's plain grey twi
 by overwriting its COLOR_0. Cameras are drawn as frustums (line segments) in the same GLB. The folder
 holds report.html, model-viewer-umd.min.js and the files reconstruct.py writes anyway; nothing is
 fetched from the network.
+
+The mesh is drawn unlit (KHR_materials_unlit) with its shading baked into the page: a fixed light from
+above, left and front, Lambert's max(0, n . l), stored per vertex in COLOR_0's alpha, which the page
+turns into the colours' brightness (std colours mildly, plain grey strongly) and then sets opaque.
+Measured with notebooks/report_load_time.py on a GPU-less 2-core machine (software WebGL), model-viewer's
+physically based material and its environment lighting took 3x as long to draw the first mesh as the
+unlit one: on such machines, which are most of the servers people reconstruct on, the lit page took
+seconds to show anything. The baked light does not follow the camera; the shape still reads as it turns.
 """
 
 from __future__ import annotations
@@ -34,7 +42,7 @@ from ushape.workspace import REPORT_FILE
 VIEWER_DIR = Path(__file__).resolve().parent / "viewer"
 VIEWER_JS = "model-viewer-umd.min.js"
 
-FRUSTUM_COLOUR = (40, 120, 220, 255)
+FRUSTUM_COLOUR = (5, 48, 183, 255)  # linear: (40, 120, 220) in sRGB
 FRUSTUM_DEPTH = 0.35  # how far (world units) a camera's frustum reaches towards the object
 THUMBNAIL = 96  # px, the input views' thumbnails
 
@@ -62,12 +70,29 @@ def frustum_segments(K: np.ndarray, world_to_cam: np.ndarray, hw: tuple[int, int
     return np.array(spokes + rim)
 
 
+LIGHT = np.array([-0.5, 1.0, 0.45]) / np.linalg.norm([-0.5, 1.0, 0.45])  # the baked light: above, left, front (y up)
+
+
+def baked_shade(normals: np.ndarray) -> np.ndarray:
+    """Lambert's max(0, n . l) [N] in [0, 1] of outward unit vertex normals [N, 3] under the fixed LIGHT."""
+    return np.clip(np.asarray(normals, np.float64) @ LIGHT, 0.0, 1.0)
+
+
+def srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    """sRGB values in [0, 1] (a colour map's) as the linear values glTF's COLOR_0 holds: drawn unlit, the
+    viewer encodes them back to the same sRGB on screen (stored as sRGB they came out washed pale)."""
+    c = np.asarray(c, np.float64)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
 def scene_glb(scene: Scene) -> bytes:
-    """The scene as one compact GLB: the mesh (positions, its std colours as COLOR_0, 16-bit indices where they
-    fit) and every camera's frustum as coloured lines. The page makes the plain-shaded copy itself (greying
-    COLOR_0), so each scene is stored once."""
+    """The scene as one compact GLB: the mesh (positions, its std colours as COLOR_0 with the baked shade in
+    their alpha, 16-bit indices where they fit; unlit) and every camera's frustum as coloured lines. The page
+    makes the plain-shaded copy itself (greying COLOR_0), so each scene is stored once."""
     mesh = scene.coloured
-    colours = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)[:, :4]
+    colours = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)[:, :4].copy()
+    colours[:, :3] = np.round(srgb_to_linear(colours[:, :3] / 255.0) * 255).astype(np.uint8)
+    colours[:, 3] = np.round(baked_shade(mesh.vertex_normals) * 255).astype(np.uint8)
     primitives = [(np.asarray(mesh.vertices, np.float32), colours, np.asarray(mesh.faces).reshape(-1), TRIANGLES)]
     if len(scene.cameras):
         segments = np.concatenate([frustum_segments(K, w2c, hw, FRUSTUM_DEPTH) for K, w2c, hw in scene.cameras])
@@ -82,7 +107,8 @@ TRIANGLES, LINES = 4, 1  # glTF primitive modes
 
 def pack_glb(primitives: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray, int]]) -> bytes:
     """A binary glTF 2.0 of one mesh whose primitives are (positions [N, 3] float32, colours [N, 4] uint8,
-    indices [M], mode); COLOR_0 is normalised uint8, indices uint16 where every index fits, else uint32."""
+    indices [M], mode), all with one unlit material (KHR_materials_unlit: the colours are drawn as they are);
+    COLOR_0 is normalised uint8, indices uint16 where every index fits, else uint32."""
     blob, views, accessors, prims = bytearray(), [], [], []
 
     def add(array: np.ndarray, component: int, kind: str, target: int, normalized: bool = False, bounds=False) -> int:
@@ -103,7 +129,8 @@ def pack_glb(primitives: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray, int]
         index = add(np.asarray(indices, np.uint16 if small else np.uint32), 5123 if small else 5125, "SCALAR", 34963)
         position = add(np.ascontiguousarray(positions, np.float32), 5126, "VEC3", 34962, bounds=True)
         colour = add(np.ascontiguousarray(colours, np.uint8), 5121, "VEC4", 34962, normalized=True)
-        prims.append({"attributes": {"POSITION": position, "COLOR_0": colour}, "indices": index, "mode": mode})
+        attributes = {"POSITION": position, "COLOR_0": colour}
+        prims.append({"attributes": attributes, "indices": index, "mode": mode, "material": 0})
     while len(blob) % 4:
         blob.append(0)
     gltf = {
@@ -112,6 +139,8 @@ def pack_glb(primitives: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray, int]
         "scenes": [{"nodes": [0]}],
         "nodes": [{"mesh": 0}],
         "meshes": [{"primitives": prims}],
+        "materials": [{"pbrMetallicRoughness": {"metallicFactor": 0.0}, "extensions": {"KHR_materials_unlit": {}}}],
+        "extensionsUsed": ["KHR_materials_unlit"],
         "buffers": [{"byteLength": len(blob)}],
         "bufferViews": views,
         "accessors": accessors,
@@ -212,18 +241,22 @@ function table() {{
   document.getElementById("figures").innerHTML = Object.entries(rows).map(
     ([k, v]) => "<tr><th>" + k + "</th><td>" + shown(v) + "</td></tr>").join("");
 }}
-// Each scene is one GLB (base64); its plain-shaded twin is the same bytes with the mesh's COLOR_0 set grey.
+// Each scene is one GLB (base64) whose mesh colours carry the baked shade in their alpha: the coloured view
+// darkens the std colours a little by it, the plain twin (the same bytes) is grey shaded by it; both opaque.
 function glbUrl(i, grey) {{
   const key = grey ? "plainUrl" : "url";
   if (SCENES[i][key]) return SCENES[i][key];
   const bytes = Uint8Array.from(atob(SCENES[i].glb), (c) => c.charCodeAt(0));
-  if (grey) {{
-    const view = new DataView(bytes.buffer), jsonLength = view.getUint32(12, true);
-    const gltf = JSON.parse(new TextDecoder().decode(bytes.subarray(20, 20 + jsonLength)));
-    const binStart = 20 + jsonLength + 8;
-    const colours = gltf.bufferViews[gltf.accessors[gltf.meshes[0].primitives[0].attributes.COLOR_0].bufferView];
-    const rgba = bytes.subarray(binStart + colours.byteOffset, binStart + colours.byteOffset + colours.byteLength);
-    for (let k = 0; k < rgba.length; k += 4) {{ rgba[k] = rgba[k + 1] = rgba[k + 2] = 200; rgba[k + 3] = 255; }}
+  const view = new DataView(bytes.buffer), jsonLength = view.getUint32(12, true);
+  const gltf = JSON.parse(new TextDecoder().decode(bytes.subarray(20, 20 + jsonLength)));
+  const binStart = 20 + jsonLength + 8;
+  const colours = gltf.bufferViews[gltf.accessors[gltf.meshes[0].primitives[0].attributes.COLOR_0].bufferView];
+  const rgba = bytes.subarray(binStart + colours.byteOffset, binStart + colours.byteOffset + colours.byteLength);
+  for (let k = 0; k < rgba.length; k += 4) {{
+    const shade = rgba[k + 3] / 255;
+    if (grey) {{ rgba[k] = rgba[k + 1] = rgba[k + 2] = Math.round(150 * (0.12 + 0.88 * shade)); }}  // linear
+    else {{ for (let c = 0; c < 3; c++) rgba[k + c] = Math.round(rgba[k + c] * (0.65 + 0.35 * shade)); }}
+    rgba[k + 3] = 255;
   }}
   SCENES[i][key] = URL.createObjectURL(new Blob([bytes], {{ type: "model/gltf-binary" }}));
   return SCENES[i][key];
