@@ -95,6 +95,7 @@ def test_ratios_and_verdicts_from_known_timings():
         ],
     )
     got = {name: (value, passed) for name, value, _, passed in ratio_rows(bench)}
+    # Exact: Python float divisions (IEEE on any CPU) of the timings above, by 1.0, 2.0 or as written here.
     assert got["coarse-to-fine mesh / dense mesh"] == (0.4 / 1.2, None)
     assert got["field w/ unc (linearised) / field"] == (1.5, True)
     assert got["field w/ unc (MC M=10) / field"] == (10.0, None)

@@ -4,14 +4,16 @@ Mesh vs fp32: Chamfer <= 1e-5 (unit-sphere frame), IoU at 64^3 >= 0.995; vertex 
 2 % (median relative); the evaluation's IoU within 0.002. On an analytic decoder that reads the point
 through a Linear layer (so bf16 autocast rounds it), on a small DeepSDF decoder (folded in bf16), and on
 a quickstart-sized (4 x 256) decoder fitted to a procedural chair. Where the fp32 re-evaluation of the
-surface holds (`exact_surface`), the bf16 mesh is the fp32 mesh itself: its faces bit for bit, its vertices
-to fp32 rounding (the fp32 decoder's values move in their last bits with batch and thread count).
+surface holds (`exact_surface`), the bf16 mesh is the fp32 mesh itself up to fp32 rounding: the fp32 decoder's
+values move in their last bits with batch and thread count, which moves vertices by up to FP32_ROUNDING and,
+where a grid value lies within that rounding of 0, may change the faces around it.
 """
 
 import numpy as np
 import pytest
 import torch
 from omegaconf import OmegaConf
+from scipy.spatial import cKDTree
 from torch import nn
 
 from ushape.bench.contract import FP32_ROUNDING, LIMITS, Contract, contract, median_relative, mesh_iou, same_mesh
@@ -41,17 +43,21 @@ class RoundedEllipsoid(nn.Module):
 
 def test_bf16_moves_the_raw_field_but_not_the_mesh_on_an_analytic_decoder():
     decoder, code = RoundedEllipsoid(), torch.tensor([0.2, -0.3])
-    raw = decode_field(decoder, code, 48, bf16=True)
-    assert (raw - decode_field(decoder, code, 48)).abs().max() > 1e-4  # bf16 really rounds the points
-    reference = marching_cubes(decode_field(decoder, code, 48))
+    field = decode_field(decoder, code, 48)
+    assert (decode_field(decoder, code, 48, bf16=True) - field).abs().max() > 1e-4  # bf16 really rounds the points
+    reference = marching_cubes(field)
     mesh = marching_cubes(surface_field(decoder, code, 48, bf16=True))
-    assert np.array_equal(mesh.faces, reference.faces) and np.array_equal(mesh.vertices, reference.vertices)
+    # The fp32 mesh, as same_mesh asks: its vertices to fp32 rounding (the surface is re-evaluated in other
+    # batches), its faces exactly, for they follow the signs and no grid value lies near 0 (2.5e-5 here, no cell is
+    # ambiguous), far beyond that rounding. So the contract's figures are same_mesh's own 0 and 1 below.
+    assert float(field.abs().min()) > 1e-5
+    assert np.array_equal(mesh.faces, reference.faces) and same_mesh(mesh, reference)
     var = torch.tensor([0.01, 0.02])
     figures = contract(decoder, code, var, resolution=48, bf16=True, cameras=orbit_cameras(2, 16), depth_size=16)
     assert figures.met(), figures.text()
     assert (figures.chamfer, figures.iou) == (0.0, 1.0)  # the very fp32 mesh
     assert figures.depth_std is not None and figures.depth_std <= LIMITS["depth_std"]
-    # fp32 against itself: no difference at all
+    # fp32 against itself: the same calls on both sides, no difference at all
     same = contract(decoder, code, var, resolution=32, bf16=False)
     assert (same.chamfer, same.iou, same.vertex_std, same.eval_iou) == (0.0, 1.0, 0.0, 0.0)
 
@@ -99,9 +105,9 @@ def test_bf16_meets_the_contract_on_a_quickstart_sized_decoder(quickstart_sized_
     assert figures.met(), figures.text()
 
 
-def test_a_deepsdf_decoder_in_bf16_meshes_exactly_as_in_fp32():
-    """Folded in bf16 (the point kept float32) and its surface re-evaluated in fp32: the fp32 mesh, its faces
-    exactly and its vertices to fp32 rounding (fp32 values move in their last bits with batch and threads)."""
+def test_a_deepsdf_decoder_in_bf16_meshes_as_in_fp32():
+    """Folded in bf16 (the point kept float32) and its surface re-evaluated in fp32: the fp32 mesh up to fp32
+    rounding (fp32 values move in their last bits with batch and threads)."""
     from ushape.decoder.network import DeepSDFDecoder
     from ushape.propagation.field import code_mesh
 
@@ -115,8 +121,12 @@ def test_a_deepsdf_decoder_in_bf16_meshes_exactly_as_in_fp32():
     reference, _ = code_mesh(decoder, code, 40, "coarse_to_fine")
     mesh, stats = code_mesh(decoder, code, 40, "coarse_to_fine", bf16=True)
     assert len(reference.vertices) > 100
-    assert np.array_equal(mesh.faces, reference.faces) and same_mesh(mesh, reference)
-    assert np.abs(np.asarray(mesh.vertices) - np.asarray(reference.vertices)).max() <= FP32_ROUNDING
+    # Not bit for bit: a grid value here lies 3e-7 from 0, within the rounding the re-evaluation's batches may
+    # give it, so its sign and the faces around it may change. Face counts within 1 %, and every vertex within
+    # FP32_ROUNDING of the other mesh's (the bf16 field's own mesh has 2 % more faces and vertices 0.03 off).
+    assert abs(len(mesh.faces) - len(reference.faces)) <= 0.01 * len(reference.faces)
+    for one, other in ((mesh, reference), (reference, mesh)):
+        assert cKDTree(np.asarray(other.vertices)).query(np.asarray(one.vertices))[0].max() <= FP32_ROUNDING
 
 
 def test_same_mesh_allows_fp32_rounding_only_and_open_meshes_get_no_iou():

@@ -132,6 +132,8 @@ def test_worker_processes_build_the_same_world(built, tmp_path):
     _, index = built
     parallel = tiny_world(tmp_path, num_workers=2).build()
     assert parallel.splits == index.splits
+    # Byte for byte: a worker runs the same per-shape job (numpy, no torch) on the same seeds, with the same
+    # libraries and thread settings, as this process.
     for sid in index.shape_ids():
         assert parallel.sdf_path(sid).read_bytes() == index.sdf_path(sid).read_bytes()
         assert parallel.image_paths(sid)[0].read_bytes() == index.image_paths(sid)[0].read_bytes()

@@ -48,8 +48,13 @@ def test_the_factor_is_a_square_root_for_definite_singular_and_diagonal_covarian
         factor = covariance_factor(cov)
         assert factor.dtype == cov.dtype
         torch.testing.assert_close(factor @ factor.T, cov, rtol=0, atol=1e-12)
-    torch.testing.assert_close(covariance_factor(definite), torch.linalg.cholesky(definite), rtol=0, atol=0)
-    var = torch.tensor([0.3, 0.0, 2.0, 1e-8], dtype=torch.float32)  # a zero variance: no Cholesky, still exact
+    # Exact: the factor of a symmetric definite covariance is its Cholesky factor, the same LAPACK call on the same
+    # matrix. Symmetrised first: B B^T's two triangles may round differently, which the factor's own (S + S^T) / 2
+    # would then change.
+    symmetric = (definite + definite.T) / 2
+    torch.testing.assert_close(covariance_factor(symmetric), torch.linalg.cholesky(symmetric), rtol=0, atol=0)
+    # a zero variance: no Cholesky, still exact (sqrt is correctly rounded on any CPU)
+    var = torch.tensor([0.3, 0.0, 2.0, 1e-8], dtype=torch.float32)
     assert torch.equal(covariance_factor(torch.diag(var)), torch.diag(var.sqrt()))
 
 

@@ -3,8 +3,10 @@
 import numpy as np
 import pytest
 import torch
+from scipy.spatial import cKDTree
 from sphere_world import sphere_samples
 
+from ushape.bench.contract import FP32_ROUNDING
 from ushape.decoder.artifacts import load_codes, load_decoder
 from ushape.decoder.latent_optim import optimise_codes
 from ushape.decoder.query import code_sdf_fn
@@ -42,6 +44,10 @@ def test_trained_decoder_mesh_is_the_same_coarse_to_fine(fitted_sphere_folder):
     code = load_codes(fitted_sphere_folder / "codes_train.pt").lookup("r40")
     dense, _ = extract_mesh(code_sdf_fn(decoder, code), resolution=96, method="dense")
     fast, stats = extract_mesh(code_sdf_fn(decoder, code), resolution=96, method="coarse_to_fine")
-    assert fast.vertices.shape == dense.vertices.shape and np.array_equal(fast.faces, dense.faces)
-    assert np.abs(fast.vertices - dense.vertices).max() < 1e-6
+    # The same surface up to float32 rounding, not bit for bit: coarse-to-fine decodes other batches, whose matrix
+    # products may round a value differently (~1e-7), and a grid value that close to 0 may change its sign and the
+    # few faces around it. A wrong block moves vertices by a grid step (0.02) or leaves them out.
+    assert abs(len(fast.faces) - len(dense.faces)) <= 0.005 * len(dense.faces)
+    for mesh, other in ((fast, dense), (dense, fast)):
+        assert cKDTree(other.vertices).query(mesh.vertices)[0].max() <= FP32_ROUNDING
     assert stats.saving > 5

@@ -124,6 +124,7 @@ def test_refined_views_keep_the_prior_where_no_view_looks(sphere_world, sphere_c
     assert views.var.shape == (2, 3, 3) and views.fallbacks == (None, None)  # full covariances, none fell back
     kept = prior.first_views(1).var[:, 1:]
     assert torch.allclose(torch.diagonal(views.var, dim1=1, dim2=2)[:, 1:], kept, rtol=1e-5)
+    # exact: the decoder reads z_0 alone, so its Jacobian is 0 elsewhere and the precision and its inverse stay diagonal
     assert torch.equal(views.var[:, 0, 1:], torch.zeros(2, 2))
     assert not torch.equal(views.mu[:, 0], prior.first_views(1).mu[:, 0])  # the one dimension a view moves
 

@@ -144,4 +144,5 @@ def test_sdf_rows_scale_the_predicted_sdf_variance_by_the_sdf_temperature_only(t
     plain, scaled = rows(None), rows(4.0)
     assert scaled["equal"] == plain["equal"]  # the equal-variance baseline is no prediction: left alone
     assert scaled["predicted"]["calibration_error"] != plain["predicted"]["calibration_error"]
+    # the same call twice, and T = 1 multiplies the variance by 1.0 exactly
     assert scaled["predicted"] == rows(4.0)["predicted"] and rows(1.0)["predicted"] == plain["predicted"]

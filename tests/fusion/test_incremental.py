@@ -24,7 +24,7 @@ def test_incremental_matches_batch_on_every_prefix(rule, k):
                 want = fuse_bayesian_k(mu[:n], var[:n], k)
         assert torch.allclose(got.mu, want.mu, rtol=1e-12, atol=1e-12)
         assert torch.allclose(got.var, want.var, rtol=1e-12, atol=1e-12)
-        assert got.kept.tolist() == want.kept.tolist()
+        assert got.kept.tolist() == want.kept.tolist()  # traces 0.1 or more apart: no near-tie to flip
 
 
 def test_incremental_bayesian_k_evicts_the_worst_view():

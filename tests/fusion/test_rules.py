@@ -95,7 +95,7 @@ def test_batched_inputs_match_per_object_fusion():
             single = fuse(mu[b], var[b])
             assert torch.allclose(batched.mu[b], single.mu, atol=1e-6)
             assert torch.allclose(batched.var[b], single.var, atol=1e-6)
-            assert torch.equal(batched.kept[b], single.kept)
+            assert torch.equal(batched.kept[b], single.kept)  # traces 5e-3 or more apart: no near-tie
 
 
 @pytest.mark.parametrize(

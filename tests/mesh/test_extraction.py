@@ -62,6 +62,8 @@ def test_coarse_to_fine_gives_the_dense_mesh_with_far_fewer_evaluations(sdf_fn):
     assert dense_stats.evaluations == 128**3
     assert fast.vertices.shape == dense.vertices.shape
     assert np.abs(fast.vertices - dense.vertices).max() < 1e-6
+    # Faces exactly: they follow the grid's signs, and no grid value lies within 2e-4 of 0 (no cell is ambiguous),
+    # far beyond the last-bit rounding other batches may give a value (what the vertices above are allowed).
     assert np.array_equal(fast.faces, dense.faces)
     assert fast_stats.saving >= 10
 
@@ -103,6 +105,8 @@ def test_surface_fn_places_every_vertex_from_the_exact_sdf(method):
     raw, raw_stats = extract_mesh(approximate, 48, method)
     fixed, stats = extract_mesh(approximate, 48, method, surface_fn=exact)
     assert raw.vertices.shape != reference.vertices.shape or not np.allclose(raw.vertices, reference.vertices)
+    # Faces exactly: every sign is the exact SDF's, and no grid value lies within 2e-4 of 0 (no ambiguous cell),
+    # so the re-evaluation's batches, which may round a value differently, cannot change a face.
     assert np.array_equal(fixed.faces, reference.faces)
     assert np.allclose(fixed.vertices, reference.vertices, atol=1e-6)
     assert stats.evaluations > raw_stats.evaluations  # the exact evaluations are counted
@@ -145,7 +149,7 @@ def test_marching_cubes_reads_only_the_signs_away_from_the_marched_corners():
         keep = marched_corners(grid)
         other = grid.clone()
         other[~keep] = grid[~keep].sign() * (5 * torch.rand(int((~keep).sum()), generator=g) + 0.01)
-        reference, mesh = marching_cubes(grid), marching_cubes(other)
+        reference, mesh = marching_cubes(grid), marching_cubes(other)  # the marched corners' values are copies
         assert np.array_equal(mesh.faces, reference.faces) and np.array_equal(mesh.vertices, reference.vertices)
         assert 0 < int(keep.sum()) < keep.numel()
     moved = grid.clone()
@@ -172,9 +176,9 @@ def test_exact_surface_trusts_signs_beyond_three_times_the_error_it_sees():
     assert count == int(expected.sum()) == sum(evaluated)
     assert evaluated == [int(marched.sum()), int((expected & ~marched).sum())]  # marched, then uncertain
     assert evaluated[1] > 0
-    # (the sphere's norm rounds its last bit differently in another batch)
+    # (the points re-evaluated come in another batch and layout, where the norm may round its last bit otherwise)
     assert torch.allclose(fixed[expected], grid[expected], rtol=0, atol=1e-6)
-    assert torch.equal(fixed[~expected], approximate[~expected])
+    assert torch.equal(fixed[~expected], approximate[~expected])  # not evaluated: the stored values, untouched
 
 
 def test_exact_surface_finds_a_sign_the_approximation_got_wrong():
@@ -189,6 +193,7 @@ def test_exact_surface_finds_a_sign_the_approximation_got_wrong():
     fixed, _ = exact_surface(approximate, sphere(radius))
     assert bool(((fixed < 0) == (grid < 0)).all())
     reference, mesh = marching_cubes(grid), marching_cubes(fixed)
+    # Faces exactly: no grid value lies within 9e-4 of 0, far beyond the rounding of the re-evaluation.
     assert np.array_equal(mesh.faces, reference.faces) and np.allclose(mesh.vertices, reference.vertices, atol=1e-6)
 
 

@@ -17,8 +17,11 @@ def test_active_writes_the_sequence_and_says_what_it_chose(sphere_world, tmp_pat
     assert code == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["candidates"] == "recorded" and summary["shape_id"] == "test_0"
-    assert [s["view"] for s in summary["steps"]] == [1, 5, 3]  # opposite, then 90 degrees (ties: lower index)
-    assert [s["azimuth"] for s in summary["steps"]] == pytest.approx([45.0, 225.0, 135.0])
+    # Opposite, then 90 degrees: 135 or 315, whose angles tie in exact arithmetic but not in their last bits,
+    # which another CPU rounds differently.
+    views, azimuths = [s["view"] for s in summary["steps"]], [s["azimuth"] for s in summary["steps"]]
+    assert views[:2] == [1, 5] and views[2] in (3, 7)
+    assert azimuths == pytest.approx([45.0, 225.0, 45.0 * views[2]])
     assert all(0 <= s["iou"] <= 1 for s in summary["steps"])
     for name in ("sequence.png", "views/step_3.png", "step_1.ply", "step_3.glb", "report.html"):
         assert (out / name).is_file(), name
@@ -26,7 +29,8 @@ def test_active_writes_the_sequence_and_says_what_it_chose(sphere_world, tmp_pat
     assert summary["report"] == str(out / "report.html") and "const SLIDER = true" in page
     assert all(f'"label": "{k} view(s)"' in page for k in (1, 2, 3))
     printed = capsys.readouterr().out
-    assert "view 3: candidate 3 (azimuth 135" in printed and "farthest sequence of test_0" in printed
+    assert f"view 3: candidate {views[2]} (azimuth {45 * views[2]}" in printed
+    assert "farthest sequence of test_0" in printed
 
 
 def test_active_names_what_is_wrong(sphere_world, tmp_path, capsys):

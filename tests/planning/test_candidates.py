@@ -35,12 +35,15 @@ def test_the_orbit_grid_crosses_azimuths_with_elevations():
         orbit_rows(0, [25.0])
 
 
-def test_orbit_views_rerender_the_worlds_own_views_exactly(chair_world):
+def test_orbit_views_rerender_the_worlds_own_views(chair_world):
     shape_id = chair_world.shape_ids("test")[0]
     rows = parse_metadata(chair_world.metadata_path(shape_id).read_text())
     views = orbit_views(chair_world, shape_id, rows=rows)
     for view in range(len(rows)):
-        assert torch.equal(views.image(view), load_rgba(chair_world.image_path(shape_id, view)))
+        # Its cameras come from views.npz's float32 frame (8e-8 from the build's float64 one): a pixel on a
+        # silhouette or on a colour's rounding edge may turn, nothing more. Another view differs in 100+ pixels.
+        rendered, stored = views.image(view), load_rgba(chair_world.image_path(shape_id, view))
+        assert int(((rendered - stored).abs().amax(0) > 1.5 / 255).sum()) <= 2
     with np.load(chair_world.views_path(shape_id)) as cams:
         np.testing.assert_allclose(views.world_to_cam, cams["world_to_cam"], atol=1e-5)
 
@@ -61,7 +64,7 @@ def test_recorded_views_are_the_worlds_views(sphere_world):
     shape_id = sphere_world.shape_ids("test")[0]
     views = candidate_views(sphere_world, shape_id)  # not a synthetic world: its own views
     assert views.source == "recorded" and len(views) == sphere_world.view_count(shape_id)
-    assert torch.equal(views.image(2), load_rgba(sphere_world.image_path(shape_id, 2)))
+    assert torch.equal(views.image(2), load_rgba(sphere_world.image_path(shape_id, 2)))  # the file, read twice
     np.testing.assert_allclose(views.azimuth_elevation()[:3], [[0, 20], [45, 20], [90, 20]], atol=1e-5)
     with pytest.raises(ValueError, match="candidates=recorded"):
         orbit_views(sphere_world, shape_id)

@@ -47,8 +47,11 @@ def test_each_step_fuses_every_view_taken_so_far(setting):
 
 
 def test_farthest_goes_opposite_then_halfway(setting):
-    # From azimuth 0: 180 (index 4), then 90 and 270 (2, 6; ties go to the lower index), then the diagonals.
-    assert [s.view for s in run(setting, "farthest")] == [0, 4, 2, 6, 1, 3]
+    # From azimuth 0: 180 (index 4), then 90 and 270 (2, 6), then the diagonals (1, 3, 5, 7). The angles of a pair
+    # (or four) tie in exact arithmetic but not in their last bits, which arccos and the matrix product round
+    # differently on another CPU, so the order within one is not asked.
+    views = [s.view for s in run(setting, "farthest")]
+    assert views[:2] == [0, 4] and sorted(views[2:4]) == [2, 6] and set(views[4:]) < {1, 3, 5, 7}
 
 
 def test_random_is_reproducible_and_never_repeats(setting):
@@ -151,7 +154,7 @@ def test_acquired_views_are_cropped_as_the_evaluation_crops_them(setting, sphere
         0.1,
         view_seed(2, candidates.shape_id, 3),
     )
-    assert torch.equal(encode.input(3), expected)
+    assert torch.equal(encode.input(3), expected)  # the same crop function on the same image, size and seed
     mu, var = encode(3)
     assert mu.shape == (3,) and torch.equal(encode(3)[0], mu)  # cached: one encoding per candidate
     with pytest.raises(ValueError, match="min_scale"):
@@ -175,6 +178,7 @@ def test_the_loop_plans_with_a_full_covariance(setting):
     full = active_reconstruction(
         candidates, encode, build_strategy("uncertainty"), predictor.decoder, 3, 0, correlated_fusion, resolution=24
     )
+    # The same picks: each is 6e-4 or more (relative) ahead of the runner-up, the scores agree to 1e-5 (below).
     assert [s.view for s in full] == [s.view for s in diagonal]
     d = diagonal[0].var.shape[0]
     for a, b in zip(diagonal, full):

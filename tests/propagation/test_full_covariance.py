@@ -134,10 +134,11 @@ def test_a_diagonal_full_covariance_gives_the_diagonal_results(small_decoder):
     cov = torch.diag(var)
     xyz = points(200, torch.float32)
     lin_d, lin_f = (propagate_linearised(small_decoder, mu, v, xyz) for v in (var, cov))
-    assert torch.equal(lin_d[0], lin_f[0])
+    assert torch.equal(lin_d[0], lin_f[0])  # the mean f(x, mu) never reads the variance: one computation
     torch.testing.assert_close(lin_f[1], lin_d[1], rtol=1e-6, atol=0)
     mc_d, mc_f = (propagate_mc(small_decoder, mu, v, xyz, 6, torch.Generator().manual_seed(2)) for v in (var, cov))
-    assert torch.equal(mc_d[0], mc_f[0]) and torch.equal(mc_d[1], mc_f[1])  # the same codes, bit for bit
+    # The same codes, bit for bit: eps @ diag(sqrt(var)) adds only exact zeros to eps * sqrt(var) (any order, any FMA).
+    assert torch.equal(mc_d[0], mc_f[0]) and torch.equal(mc_d[1], mc_f[1])
     for method in ("mc", "linearised"):
         std_d, std_f = (
             vertex_uncertainty(small_decoder, mu, v, xyz, method, 5, torch.Generator().manual_seed(3))
@@ -149,7 +150,7 @@ def test_a_diagonal_full_covariance_gives_the_diagonal_results(small_decoder):
         band_d, band_f = (
             narrow_band_field(small_decoder, mu, v, 12, method, 4, torch.Generator().manual_seed(5)) for v in (var, cov)
         )
-        assert torch.equal(band_d.band, band_f.band)
+        assert torch.equal(band_d.band, band_f.band)  # the band comes from the mean's pass, which ignores var
         torch.testing.assert_close(band_f.variance, band_d.variance, rtol=1e-6, atol=0)
 
 

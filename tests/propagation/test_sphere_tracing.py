@@ -41,7 +41,9 @@ def test_depth_at_centre_is_distance_minus_radius_and_std_zero_for_equal_codes()
     # the centre pixel's ray passes within a fraction of a pixel of the sphere's centre
     assert abs(float(centre) - (distance - radius)) < 2e-3
     hits = stats.hit_rate > 0
-    assert torch.all(stats.std[hits] == 0) and torch.all(stats.hit_rate[hits] == 1)
+    # Equal codes, one depth: the std is 0 up to float32 rounding (equal rows of one batch may still take
+    # different kernel paths, e.g. a vector loop and its tail, which may round a norm's last bit differently).
+    assert float(stats.std[hits].max()) <= 1e-6 and torch.all(stats.hit_rate[hits] == 1)
     assert torch.isnan(stats.mean[0, 0]) and stats.hit_rate[0, 0] == 0  # corner ray misses
     # the silhouette's area matches the projected disc: radius_px = f * r / sqrt(d^2 - r^2)
     expected = math.pi * (K[0, 0] * radius / math.sqrt(distance**2 - radius**2)) ** 2

@@ -142,7 +142,7 @@ def test_the_floor_and_the_scale_are_found_together():
         scale = (factor * std.square() + floor**2).sqrt()
         groups.append(((scale * torch.randn(8000, generator=gen, dtype=torch.float64)).abs(), std))
     floors = floor_grid(0.04)
-    assert floors[0] == 0.0 and floor in floors
+    assert floors[0] == 0.0 and floor in floors  # k = 0: the scale times 2.0 ** 0, the scale itself
     coarse = CALIBRATION_GRID[::2]  # 2^(1/4) apart, 0.5 on it
     found, found_floor, before, after = fit_calibration_temperature_and_floor(groups, floors, grid=coarse)
     assert found == pytest.approx(factor, rel=0.1) and found_floor == pytest.approx(floor)

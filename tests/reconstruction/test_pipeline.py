@@ -41,7 +41,7 @@ def test_reconstruct_writes_every_output(tiny_run, sphere_predictor, tmp_path):
     for key in ("ply", "glb", "colour_bar", "overview"):
         assert (out / summary["files"][key].split("/")[-1]).is_file()
     std_ply, std_glb = read_ply_std(summary["files"]["ply"]), read_glb_std(summary["files"]["glb"])
-    assert np.array_equal(std_ply, std_glb) and len(std_ply) == summary["mesh"]["vertices"]
+    assert np.array_equal(std_ply, std_glb) and len(std_ply) == summary["mesh"]["vertices"]  # one array, two files
     # linearised: std = 0.1 (1 + x) sqrt(var_0), largest on the +x side of the sphere
     import trimesh
 

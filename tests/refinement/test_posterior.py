@@ -241,6 +241,7 @@ def test_deferred_jacobian_equals_the_eager_one_and_rejected_trials_pay_no_gradi
     decoder = CountingSphere()
     eager = residuals(decoder, bigger.float(), [view], obs, use_depth=True)
     lazy = residuals(decoder, bigger.float(), [view], obs, use_depth=True, jacobian=False)
+    # Exact: residuals(jacobian=True) is with_jacobian of this very result, the same calls on the same points.
     assert lazy.J.shape == (0, 4) and torch.equal(lazy.r, eager.r) and torch.equal(lazy.kind, eager.kind)
     decoder.gradient_passes = 0
     filled = with_jacobian(decoder, bigger.float(), lazy)

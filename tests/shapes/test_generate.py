@@ -132,7 +132,7 @@ def test_part_index_and_part_sdf_agree_with_sdf():
     points = np.random.default_rng(1).uniform(-1, 1, (3000, 3))
     per_part = shape.part_sdf(points)
     np.testing.assert_allclose(per_part.min(0), shape.sdf(points), atol=1e-12)
-    np.testing.assert_array_equal(shape.part_index(points), per_part.argmin(0))
+    np.testing.assert_array_equal(shape.part_index(points), per_part.argmin(0))  # part_index is this argmin
     # A point just under the middle of the top belongs to the top.
     lo, hi = shape.bounds()
     probe = np.array([[0.0, hi[1] - 0.01, 0.0]])
