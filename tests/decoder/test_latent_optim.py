@@ -32,6 +32,23 @@ def test_recovers_held_out_spheres_from_sample_lists(fitted_sphere_folder):
     assert decoder.training and all(p.requires_grad and p.grad is None for p in decoder.parameters())
 
 
+def test_passes_of_a_few_shapes_give_the_codes_of_one_pass(fitted_sphere_folder):
+    """Split into passes (one shape each, or two) or not, each code gets the gradient of its own samples:
+    the same codes up to float rounding (the passes' matrix products round in other batches)."""
+    decoder = load_decoder(fitted_sphere_folder)
+    rng = np.random.default_rng(6)
+    shapes = []
+    for radius in (0.3, 0.45, 0.6):
+        pos, neg = sphere_samples(radius, 1000, rng)
+        rows = torch.from_numpy(np.concatenate([pos, neg]))
+        shapes.append((rows[:, :3], rows[:, 3]))
+    one = optimise_codes(decoder, shapes, iterations=30, samples_per_iter=200, rows_per_pass=10**6)
+    for rows_per_pass in (200, 400, 399):  # 1, 2 and (rounded down) 1 shape a pass
+        split = optimise_codes(decoder, shapes, iterations=30, samples_per_iter=200, rows_per_pass=rows_per_pass)
+        torch.testing.assert_close(split, one, rtol=1e-4, atol=1e-5)
+    assert (one[0] - one[2]).abs().max() > 1e-2  # different spheres, different codes: the check can fail
+
+
 def test_samples_need_both_signs(fitted_sphere_folder):
     decoder = load_decoder(fitted_sphere_folder)
     xyz = torch.rand(10, 3) + 2.0

@@ -52,9 +52,9 @@ class TrainingSettings:
     latent_size: int = 64
     steps: int = 60  # timed steps per stage-1 row (after `warmup`)
     warmup: int = 5
-    latent_codes: int = 8
+    latent_codes: int = 20  # the quickstart's val (or test) split, fitted in one call
     latent_iterations: int = 200
-    latent_samples: int = 2000
+    latent_samples: int = 1000
     feature_views: int = 64
     threads: tuple[int, ...] = (1, 2)
     # The world-build rows: the quickstart world's per-shape settings (conf/data/synthetic_quickstart.yaml).

@@ -20,6 +20,11 @@ from ushape.decoder.query import decoder_autocast, decoder_device, frozen
 
 SampleSource = Sequence[tuple[Tensor, Tensor]] | SDFSamplesDataset
 
+# Sample rows a decoder pass takes at most. On the 2-core AMD EPYC (AVX2), 20 quickstart codes x 2,000
+# samples: 5.8 s a code in one 40,000-row pass, 4.0 s in passes of 16,384 rows, 2.9 s in passes of 8,192
+# (a 256-wide layer's activations for 40,000 rows, 41 MB, do not stay in cache); docs/benchmark.md.
+ROWS_PER_PASS = 8_192
+
 
 def optimise_codes(
     decoder: nn.Module,
@@ -33,11 +38,15 @@ def optimise_codes(
     init_std: float = 0.01,
     bf16: bool | str = False,
     seed: int = 0,
+    rows_per_pass: int = ROWS_PER_PASS,
 ) -> Tensor:
     """Latent codes fitting each shape's SDF samples under the frozen decoder. -> [S, D]
 
     sdf_samples: a list of (xyz [N, 3], sdf [N]) per shape, or an SDFSamplesDataset (all its samples).
     bf16: autocast the decoder to bf16 (True), not (False), or where it is faster on its device ("auto").
+    rows_per_pass: at most this many sample rows (shapes x samples_per_iter) go through the decoder at once;
+    more shapes are split into passes whose gradients add up before the one Adam step (each code's gradient
+    comes from its own pass, so the result is the same up to float rounding; only the speed changes).
     """
     pos, pos_count, neg, neg_count = _padded_by_sign(sdf_samples)
     device = decoder_device(decoder)
@@ -48,6 +57,7 @@ def optimise_codes(
     codes = (torch.randn(num_shapes, latent_size, generator=generator) * init_std).to(device).requires_grad_(True)
     optimiser = torch.optim.Adam([codes], lr=lr)
     n_pos = samples_per_iter - samples_per_iter // 2
+    shapes_per_pass = max(1, rows_per_pass // samples_per_iter)
     with frozen(decoder):
         for step in range(iterations):
             if step == lr_drop_at:
@@ -60,12 +70,13 @@ def optimise_codes(
                 ],
                 dim=1,
             )
-            with decoder_autocast(device, bf16):
-                pred = decoder(rows[..., :3], codes[:, None, :])  # [S, K]
-            target = rows[..., 3].clamp(-clamp, clamp)
-            per_shape = (pred.float().clamp(-clamp, clamp) - target).abs().mean(dim=1) + code_prior(codes, code_reg)
             optimiser.zero_grad(set_to_none=True)
-            per_shape.sum().backward()
+            for part in torch.arange(num_shapes, device=device).split(shapes_per_pass):
+                with decoder_autocast(device, bf16):
+                    pred = decoder(rows[part, :, :3], codes[part, None, :])  # [s, K]
+                target = rows[part, :, 3].clamp(-clamp, clamp)
+                fit = (pred.float().clamp(-clamp, clamp) - target).abs().mean(dim=1)
+                (fit + code_prior(codes[part], code_reg)).sum().backward()
             optimiser.step()
     return codes.detach().cpu()
 
