@@ -61,7 +61,8 @@ def measure(page: Path, timeout_s: float = 60.0) -> float | None:
     if browser is None:
         raise SystemExit("no Chromium on the PATH (apt-get install chromium)")
     port = free_port()
-    with tempfile.TemporaryDirectory() as profile:
+    # Chromium's helper processes may still write into the profile after the browser exits.
+    with tempfile.TemporaryDirectory(ignore_cleanup_errors=True) as profile:
         args = [browser, *FLAGS, f"--remote-debugging-port={port}", f"--user-data-dir={profile}", page.as_uri()]
         process = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         try:
