@@ -12,7 +12,7 @@ holds report.html, model-viewer-umd.min.js and the files reconstruct.py writes a
 fetched from the network.
 
 The mesh is drawn unlit (KHR_materials_unlit) with its shading baked into the page: a fixed light from
-above, left and front, Lambert's max(0, n . l), stored per vertex in COLOR_0's alpha, which the page
+above, left and front, half-Lambert shading, stored per vertex in COLOR_0's alpha, which the page
 turns into the colours' brightness (std colours mildly, plain grey strongly) and then sets opaque.
 Measured with notebooks/report_load_time.py on a GPU-less 2-core machine (software WebGL), model-viewer's
 physically based material and its environment lighting took 3x as long to draw the first mesh as the
@@ -75,8 +75,10 @@ LIGHT = np.array([-0.5, 1.0, 0.45]) / np.linalg.norm([-0.5, 1.0, 0.45])  # the b
 
 
 def baked_shade(normals: np.ndarray) -> np.ndarray:
-    """Lambert's max(0, n . l) [N] in [0, 1] of outward unit vertex normals [N, 3] under the fixed LIGHT."""
-    return np.clip(np.asarray(normals, np.float64) @ LIGHT, 0.0, 1.0)
+    """Half-Lambert (0.5 n . l + 0.5)^2 [N] in [0, 1] of outward unit vertex normals [N, 3] under the fixed
+    LIGHT: 1 facing it, 1/4 side-on, 0 only facing straight away, so the side away from the light still shows
+    its shape as the object turns (plain Lambert leaves half of every mesh one flat dark)."""
+    return np.clip(0.5 * (np.asarray(normals, np.float64) @ LIGHT) + 0.5, 0.0, 1.0) ** 2
 
 
 def srgb_to_linear(c: np.ndarray) -> np.ndarray:
@@ -156,6 +158,15 @@ def data_uri(data: bytes, mime: str) -> str:
     return f"data:{mime};base64,{base64.b64encode(data).decode('ascii')}"
 
 
+def flat_environment() -> str:
+    """A 4 x 2 white PNG (data URI) as the viewer's environment map. The scene is unlit, so the environment
+    lights nothing; model-viewer's default ("neutral", a room it renders and pre-filters) took most of the
+    time to the first mesh in software WebGL, and a tiny map is pre-filtered at once."""
+    buffer = io.BytesIO()
+    Image.new("RGB", (4, 2), (255, 255, 255)).save(buffer, format="PNG")
+    return data_uri(buffer.getvalue(), "image/png")
+
+
 def thumbnail(image: np.ndarray) -> str:
     """A view [H, W, 3] in [0, 1] as a small PNG data URI."""
     picture = Image.fromarray((np.clip(image, 0, 1) * 255).astype(np.uint8))
@@ -190,6 +201,7 @@ def write_report(
     page = TEMPLATE.format(
         title=html.escape(title),
         viewer_js=VIEWER_JS,
+        environment=flat_environment(),
         scenes=json.dumps(entries),
         figures=json.dumps(figures or {}),
         slider="true" if slider else "false",
@@ -218,8 +230,8 @@ table {{ border-collapse: collapse; }} td, th {{ border: 1px solid #ddd; padding
   <label id="slider-label">View <input id="slider" type="range" min="0" value="0"> <span id="step"></span></label>
   <button id="toggle">plain shading</button>
 </div>
-<model-viewer id="viewer" camera-controls shadow-intensity="0" exposure="1.0"
-  environment-image="neutral" interaction-prompt="none" alt="the reconstruction"></model-viewer>
+<model-viewer id="viewer" camera-controls shadow-intensity="0" exposure="1.0" tone-mapping="none"
+  environment-image="{environment}" interaction-prompt="none" alt="the reconstruction"></model-viewer>
 <div>{colour_bar}</div>
 <div id="views">{thumbnails}</div>
 <table id="figures"></table>
