@@ -15,8 +15,9 @@ The mesh is drawn unlit (KHR_materials_unlit) with its shading baked into the pa
 above, left and front, half-Lambert shading, stored per vertex in COLOR_0's alpha, which the page
 turns into the colours' brightness (std colours mildly, plain grey strongly) and then sets opaque.
 Measured with notebooks/report_load_time.py on a GPU-less 2-core machine (software WebGL), model-viewer's
-physically based material and its environment lighting took 3x as long to draw the first mesh as the
-unlit one (5.7-6.6 s against 2.1-2.2 s for a 12-view page; docs/commands.md). The baked light does not
+physically based material took 3x as long to draw the first mesh as the unlit one, and its default
+environment half of what was left (a 12-view page: lit 5.7-6.6 s, unlit 2.1-2.35 s, unlit with the flat
+environment below 1.1-1.4 s; docs/commands.md). The baked light does not
 follow the camera; the shape still reads as it turns. The std colours are darkened by at most 35 % where
 the baked light does not reach, so read values off the colour bar where a part faces the light.
 """
