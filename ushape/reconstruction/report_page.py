@@ -16,8 +16,8 @@ above, left and front, half-Lambert shading, stored per vertex in COLOR_0's alph
 turns into the colours' brightness (std colours mildly, plain grey strongly) and then sets opaque.
 Measured with notebooks/report_load_time.py on a GPU-less 2-core machine (software WebGL), model-viewer's
 physically based material took 3x as long to draw the first mesh as the unlit one, and its default
-environment half of what was left (a 12-view page: lit 5.7-6.6 s, unlit 2.1-2.35 s, unlit with the flat
-environment below 1.1-1.4 s; docs/commands.md). The baked light does not
+environment half of what was left (the demo's lit page 5.7-6.6 s; a 12-view page unlit 2.1-2.35 s, and
+with the flat environment below 1.1-1.4 s; docs/commands.md). The baked light does not
 follow the camera; the shape still reads as it turns. The std colours are darkened by at most 35 % where
 the baked light does not reach, so read values off the colour bar where a part faces the light.
 """
