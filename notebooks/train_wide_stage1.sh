@@ -9,7 +9,7 @@
 # The network's learning rate is halved (1e-3, the recipe's 2e-3 for 4 x 256): Adam's first step shifts a
 # fresh network's output by ~lr x width, at 2e-3 the 4 x 512 moved every prediction outside the +-0.1 clamp,
 # where the clamped L1 has no gradient, and it never learned (loss 0.11 = the clamp); at 1e-3 it learns as
-# fast per epoch as the 4 x 256 (probe on 200 chairs, 3 seeds; docs/pretrained.md).
+# fast per epoch as the 4 x 256 (its first step at 3 seeds, 25 epochs on 200 chairs; docs/pretrained.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 VOXELS=${VOXELS:-$(realpath ../shared/data/ShapeNetVox32)}
