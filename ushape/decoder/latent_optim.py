@@ -71,7 +71,8 @@ def optimise_codes(
                 dim=1,
             )
             optimiser.zero_grad(set_to_none=True)
-            for part in torch.arange(num_shapes, device=device).split(shapes_per_pass):
+            for start in range(0, num_shapes, shapes_per_pass):
+                part = slice(start, start + shapes_per_pass)  # views, not gathered copies
                 with decoder_autocast(device, bf16):
                     pred = decoder(rows[part, :, :3], codes[part, None, :])  # [s, K]
                 target = rows[part, :, 3].clamp(-clamp, clamp)
