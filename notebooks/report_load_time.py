@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import os
 import shutil
 import socket
 import subprocess
@@ -23,8 +24,6 @@ import urllib.request
 from pathlib import Path
 
 import aiohttp
-
-import os
 
 FLAGS = os.environ.get(
     "REPORT_FLAGS", "--headless=new --no-sandbox --disable-gpu --enable-unsafe-swiftshader --use-angle=swiftshader"
@@ -57,7 +56,9 @@ async def loaded_ms(ws_url: str, timeout_s: float) -> float | None:
 
 
 def measure(page: Path, timeout_s: float = 60.0) -> float | None:
-    browser = next((shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome") if shutil.which(n)), None)
+    browser = next(
+        (shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome") if shutil.which(n)), None
+    )
     if browser is None:
         raise SystemExit("no Chromium on the PATH (apt-get install chromium)")
     port = free_port()
