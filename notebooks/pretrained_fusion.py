@@ -108,7 +108,12 @@ def summary(result: dict) -> str:
             for rule in rule_names:
                 values = [r[rule] for r in part if rule in r]
                 es = [r[f"{rule}_latent"]["es"] for r in part if f"{rule}_latent" in r]
-                cells.append(f"{np.mean(values):.3f} (ES {np.mean(es):.3f})" if values else "–")
+                if not values:
+                    cells.append("–")
+                elif model == "L2":  # its variance is not a prediction: no latent score
+                    cells.append(f"{np.mean(values):.3f}")
+                else:
+                    cells.append(f"{np.mean(values):.3f} (ES {np.mean(es):.3f})")
             lines.append(f"| {model} | {scale:g} | " + " | ".join(cells) + " |")
     k_rule = f"bayesian-{result['k']}"
     for scale in sorted({r["min_scale"] for r in rows}, reverse=True):
