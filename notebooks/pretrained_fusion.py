@@ -130,8 +130,10 @@ def summary(result: dict) -> str:
                 lines.append(f"min scale {scale:g}, {label}: {d.mean():+.3f} +- {d.std(ddof=1) / np.sqrt(len(d)):.3f} "
                              f"(s.e.), higher on {100 * np.mean(d > 0):.0f} % of the shapes")  # fmt: skip
     shapes = len({r["shape"] for r in rows})
-    lines.append(f"\n{shapes} test shapes, {result['group']} views each; IoU against R2N2's voxels at +0.4 voxel, "
-                 "mean; ES: latent energy score per dimension against the shape's own code (lower is better).")  # fmt: skip
+    lines.append(
+        f"\n{shapes} test shapes, {result['group']} views each; IoU against R2N2's voxels at +0.4 voxel, mean; "
+        "ES: latent energy score per dimension against the shape's own code (lower is better)."
+    )
     return "\n".join(lines)
 
 
