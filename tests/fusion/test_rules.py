@@ -89,17 +89,20 @@ def test_bayesian_k_larger_than_views_warns_and_uses_all():
 
 def test_batched_inputs_match_per_object_fusion():
     mu, var = torch.randn(4, 6, 16), torch.rand(4, 6, 16) + 0.05
-    # The views Bayesian-K keeps are compared exactly below: the 3rd and 4th lowest traces of every object
-    # lie far apart (beyond any rounding of a 16-term sum in another batching), so no near-tie can flip.
-    traces = var.sum(-1).sort(-1).values
-    assert ((traces[:, 3] - traces[:, 2]) / traces[:, 3]).min() > 1e-3
+    # The views each rule keeps are compared by their traces below: Bayesian-K's 3rd and 4th lowest traces of
+    # every object lie > 0.1 % apart, so traces within 1e-5 of each other mean the same views were kept (no
+    # near-tie for another batching's rounding to flip).
+    traces = var.sum(-1)
+    ordered = traces.sort(-1).values
+    assert ((ordered[:, 3] - ordered[:, 2]) / ordered[:, 3]).min() > 1e-3
     for fuse in (fuse_average, fuse_bayesian, lambda m, v: fuse_bayesian_k(m, v, 3)):
         batched = fuse(mu, var)
         for b in range(4):
             single = fuse(mu[b], var[b])
             assert torch.allclose(batched.mu[b], single.mu, atol=1e-6)
             assert torch.allclose(batched.var[b], single.var, atol=1e-6)
-            assert torch.equal(batched.kept[b], single.kept)  # no near-tie (guarded above)
+            # in the order kept; a swap of two views whose traces tie within the tolerance would still pass
+            assert torch.allclose(traces[b][batched.kept[b]], traces[b][single.kept], rtol=1e-5, atol=0.0)
 
 
 @pytest.mark.parametrize(
