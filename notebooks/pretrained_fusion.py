@@ -25,17 +25,16 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from pose_measure import iou  # noqa: E402
 from pretrained_measure import codes_dir  # noqa: E402
 from r2n2_ceiling import shape_frame  # noqa: E402
 
 from ushape.data.layout import WorldIndex  # noqa: E402
 from ushape.data.real.r2n2_voxels import read_r2n2_voxels  # noqa: E402
 from ushape.decoder.artifacts import codes_file, load_codes  # noqa: E402
-from ushape.decoder.query import code_sdf_fn  # noqa: E402
 from ushape.evaluation.views import ViewKey, encode_views  # noqa: E402
 from ushape.fusion.rules import fuse_average, fuse_bayesian, fuse_bayesian_k  # noqa: E402
 from ushape.metrics.scores import energy_score_1d, gaussian_nll_1d  # noqa: E402
-from ushape.metrics.voxel_iou import PROTOCOL_LEVEL, numpy_sdf, voxel_iou  # noqa: E402
 from ushape.reconstruction.calibrated_fusion import default_fusion  # noqa: E402
 from ushape.reconstruction.pretrained import open_model  # noqa: E402
 
@@ -65,31 +64,32 @@ def measure(args) -> dict:
     shape_ids = world.shape_ids("test")[: args.shapes]
     keys = [ViewKey(s, v) for s in shape_ids for v in range(args.group)]
     cache = args.out.parent / "fusion_cache"
-    frames = {}
+    frames = {}  # per shape: ((centre, scale, side), voxels), as pose_measure.iou takes them
     for s in shape_ids:
         centre, scale, side, source = shape_frame(world, s)
-        frames[s] = (centre, scale, side, read_r2n2_voxels(source)[0])
+        frames[s] = ((centre, scale, side), read_r2n2_voxels(source)[0])
     rows = []
     for name, predictor in models.items():
         decoder = predictor.decoder
-
-        def iou(code, s):
-            centre, scale, side, voxels = frames[s]
-            return voxel_iou(numpy_sdf(code_sdf_fn(decoder, code)), voxels, side, centre, scale, PROTOCOL_LEVEL)
-
+        # FroDO*'s L2 head predicts a code, not its uncertainty: its multi-view rule is the average.
+        compared = rules(predictor, args.k) if name == "ES" else {"average": fuse_average}
         for min_scale in args.min_scales:
             enc = encode_views(predictor, world, keys, min_scale, args.seed, cache)
             mu = enc.mu.reshape(len(shape_ids), args.group, -1)
             var = enc.var.reshape(len(shape_ids), args.group, -1)
             for i, s in enumerate(shape_ids):
+                frame, voxels = frames[s]
                 truth = codes.lookup(s)
-                row = {"model": name, "min_scale": min_scale, "shape": s, "single": iou(mu[i, 0], s)}
+                row = {
+                    "model": name,
+                    "min_scale": min_scale,
+                    "shape": s,
+                    "single": iou(decoder, mu[i, 0], voxels, frame),
+                }
                 row["single_latent"] = latent_scores(mu[i, 0], var[i, 0], truth)
-                # FroDO*'s L2 head predicts a code, not its uncertainty: its multi-view rule is the average.
-                compared = rules(predictor, args.k) if name == "ES" else {"average": fuse_average}
                 for rule_name, rule in compared.items():
                     fused = rule(mu[i], var[i])
-                    row[rule_name] = iou(fused.mu, s)
+                    row[rule_name] = iou(decoder, fused.mu, voxels, frame)
                     row[f"{rule_name}_latent"] = latent_scores(fused.mu, fused.var, truth)
                 rows.append(row)
             print(f"{name} min scale {min_scale:g}: {len(shape_ids)} shapes", flush=True)
