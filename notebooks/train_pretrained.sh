@@ -22,17 +22,7 @@ COMMON=(experiment=r2n2_cpu_2h "data.voxels_root=$VOXELS" data.n_val=100 data.n_
   stage2.module.bf16=false)
 
 decoder_dir() {  # the stage-1 folder train.py uses for this category's config
-  .venv/bin/python - "$1" "${COMMON[@]}" <<'EOF'
-import sys
-from hydra import compose, initialize_config_dir
-from hydra.core.hydra_config import HydraConfig
-from ushape.training.decoder_store import decoder_dir_for
-from ushape.workspace import CONFIG_DIR
-with initialize_config_dir(str(CONFIG_DIR), version_base="1.3"):
-    cfg = compose("train", overrides=[f"category={sys.argv[1]}", *sys.argv[2:]], return_hydra_config=True)
-    HydraConfig.instance().set_config(cfg)
-    print(decoder_dir_for(cfg))
-EOF
+  .venv/bin/python notebooks/decoder_dir.py "category=$1" "${COMMON[@]}"
 }
 
 categories=("$@")
