@@ -18,6 +18,7 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -153,6 +154,12 @@ def main() -> None:
         action="store_false",
         help="ignore the model's viewpoint head: hypotheses from the masks alone",
     )
+    parser.add_argument(
+        "--grid-reuse",
+        type=float,
+        default=None,
+        help="the pose search's grid reuse (PoseSettings.grid_reuse; 0: an SDF grid per code; default: the model's)",
+    )
     args = parser.parse_args()
     if args.summary is not None:
         print(json.dumps(summary(args.summary), indent=1))
@@ -162,6 +169,8 @@ def main() -> None:
     world = WorldIndex.load(args.world or predictor.world)
     args.fit = read_refinement_calibration(predictor.checkpoint, "masks")
     args.pose_settings = pose_settings_for(predictor.checkpoint)  # its fitted pose information scale, if any
+    if args.grid_reuse is not None:
+        args.pose_settings = replace(args.pose_settings, grid_reuse=args.grid_reuse)
     fusion = default_fusion(predictor)
     done = set()
     if args.out.is_file():

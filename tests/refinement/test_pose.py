@@ -14,7 +14,7 @@ from torch import nn
 
 from ushape.data.cameras import look_at
 from ushape.propagation.sphere_tracing import camera_rays
-from ushape.refinement.joint import PoseGroups, PoseSettings, Problem, State
+from ushape.refinement.joint import GridCache, PoseGroups, PoseSettings, Problem, State, grid_probes
 from ushape.refinement.pose import Pose, exp_so3, log_so3, point_jacobian, rotation_angle_deg, scale_observable
 from ushape.refinement.pose_search import refine_pose_and_shape
 from ushape.refinement.posterior import refine_settings
@@ -134,6 +134,28 @@ def test_a_sphere_keeps_the_prior_on_rotation_and_recovers_translation_and_radiu
     radius = pose.scale * 0.4 * math.exp(float(post.mu[0]))
     assert radius == pytest.approx(0.4, rel=0.03)
     assert post.pose_record(0)["translation_std"][0] < 0.05
+
+
+def test_a_grid_is_shared_by_codes_whose_sdf_moved_less_than_the_reuse_and_carries_their_drift():
+    """A ball's code scales its radius, so its SDF moves by the same amount everywhere: 0.4 (e^dz - 1)."""
+    decoder, obs = Ball(), refine_settings("masks", size=16).observation
+    cache = GridCache(reuse=0.05, probes=256)
+    first = cache.get(decoder, torch.zeros(1), obs)
+    assert cache.built == 1 and first.drift == 0.0
+    points, values = grid_probes(first, 256)
+    assert points.shape == (256, 3)
+    assert torch.allclose(values, decoder(points, torch.zeros(256, 1)), atol=1e-5)  # the stored values, at nodes
+    assert values.abs().min() < 0.02 and values.abs().max() > 0.3  # near the surface and spread over the ball
+    near = cache.get(decoder, torch.tensor([0.05]), obs)
+    assert cache.built == 1 and near.volume is first.volume
+    assert near.drift == pytest.approx(0.4 * math.expm1(0.05), abs=1e-5)
+    moved = cache.get(decoder, torch.tensor([0.3]), obs)  # 0.14 away: a grid of its own
+    assert cache.built == 2 and moved.drift == 0.0
+    assert cache.get(decoder, torch.tensor([0.3]), obs) is moved  # the same code reads its own grid
+    every = GridCache(reuse=0.0)
+    every.get(decoder, torch.zeros(1), obs)
+    every.get(decoder, torch.tensor([1e-3]), obs)
+    assert every.built == 2
 
 
 @pytest.fixture(scope="module")

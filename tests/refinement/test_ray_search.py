@@ -1,10 +1,13 @@
 """Ray minimum search: the SDF grid's interpolation, and the grid search against the exact one on a sphere."""
 
+from dataclasses import replace
+
 import pytest
 import torch
 
 from ushape.data.cameras import look_at
 from ushape.data.rendering import pixel_rays
+from ushape.refinement.observation import ObservationSettings
 from ushape.refinement.ray_search import ray_ball, ray_minimum, sdf_grid
 
 RADIUS = 0.4
@@ -103,3 +106,31 @@ def test_a_ray_segment_cut_short_reads_only_the_part_in_front():
     end = o + limit[:, None] * d
     assert (found > 0).all()
     assert (found >= torch.minimum(entry.norm(dim=-1), end.norm(dim=-1)) - RADIUS - 0.05).all()
+
+
+def test_node_points_are_where_the_grid_stored_their_values():
+    grid = sdf_grid(linear_sdf, 9, 1.0)
+    flat = torch.arange(grid.volume.numel())
+    inside = grid.volume.reshape(-1) < 4.0  # the nodes the ball can interpolate hold the function's value
+    assert torch.allclose(grid.volume.reshape(-1)[inside], linear_sdf(grid.nodes(flat[inside])), atol=1e-6)
+
+
+def test_a_grid_of_a_nearby_code_needs_its_drift_to_find_the_surface():
+    """The grid of a sphere of radius 0.4 read for one of radius 0.55 (a code whose SDF moved by 0.15): a ray
+    passing 0.5 from the centre meets the new sphere, but its stale minimum is 0.1 above the old one, past the
+    margin of 0.08; with the drift given, the margin widens and the decoder's exact samples find the surface."""
+    grown = 0.55
+
+    def new_sphere(points):
+        return points.norm(dim=-1) - grown
+
+    stale = sdf_grid(lambda p: p.norm(dim=-1) - RADIUS, 33, 1.0)
+    o = torch.tensor([[0.5, 0.0, -2.0], [0.0, 0.5, -2.0]])
+    d = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    truth = 0.5 - grown
+    blind, _ = ray_minimum(new_sphere, o, d, 24, 8, 1.0, grid=stale, margin=0.08)
+    assert (blind - (0.5 - RADIUS)).abs().max() < 0.01  # the stale value: the ray is taken for a miss
+    drifted = replace(stale, drift=0.15)
+    settings = ObservationSettings(tau=0.01, band=3.0, grid_slack=0.05)  # margin 0.08, + 2 x drift
+    found, _ = settings.minimum(new_sphere, o, d, None, drifted)
+    assert (found - truth).abs().max() < 5e-3

@@ -39,6 +39,7 @@ from ushape.refinement.posterior import (
     prior_precision,
     row_weights,
 )
+from ushape.refinement.ray_search import SDFGrid
 from ushape.refinement.views import ObservedView
 
 # A valid camera in front of the object: what an unposed view carries until the estimate replaces it.
@@ -58,9 +59,11 @@ class PoseSettings:
     # only where a wide sigmoid reaches. Screening runs at the first; the joint runs go through all of them.
     tau_schedule: tuple[float, ...] = (8.0, 4.0, 2.0, 1.0)
     stage_iterations: int = 8  # LM steps at most per sharpness
-    # ... of which the last this many move the code with the pose (each code step builds a new SDF grid; a pose
-    # step reuses it)
+    # ... of which the last this many move the code with the pose
     code_stages: int = 2
+    # A code whose SDF lies within this of the ray search's grid (at its probe nodes) reads that grid instead of
+    # building its own, with the search's margin widened by the drift (`GridCache`; 0: a grid per code)
+    grid_reuse: float = 0.05
     rotation_prior_deg: float = 60.0  # the prior's std about each hypothesis, per axis
     # ... where a viewpoint head chose the hypotheses: its azimuth is within 15 degrees for 92 % of val chairs
     rotation_prior_with_head_deg: float = 10.0
@@ -154,17 +157,52 @@ class PosedPosterior(Posterior):
 
 
 class GridCache:
-    """The SDF grid of the last code asked for (`observation.code_grid`): steps that move only the poses, and every
-    hypothesis screened at the fused code, build it once."""
+    """The ray search's SDF grid (`observation.code_grid`), shared by nearby codes.
 
-    def __init__(self) -> None:
+    A grid is built at one code and read for every later code whose SDF stays within `reuse` of it: the drift is
+    measured at `probes` of the grid's nodes (half those nearest its surface, where silhouettes are decided, half
+    spread over the ball, where a new part could appear) by one decoder pass, and the search widens its margin by
+    twice that drift, so a ray the new code brings near the surface still gets exact decoder samples. A code that
+    moved further gets a grid of its own. Pose-only steps and hypotheses screened at one code read one grid; code
+    steps of a converging LM, each a small move, read it until their drift adds up (reuse = 0: a grid per code).
+    """
+
+    def __init__(self, reuse: float = 0.0, probes: int = 1024) -> None:
+        self.reuse, self.probes = reuse, probes
         self.z: Tensor | None = None
         self.grid: Any = None
+        self.probe_points = torch.zeros(0, 3)
+        self.probe_values = torch.zeros(0)
+        self.built = 0  # grids built so far (for the cost's accounting)
 
     def get(self, decoder: torch.nn.Module, z: Tensor, obs: ObservationSettings) -> Any:
-        if self.z is None or not torch.equal(self.z, z):
-            self.z, self.grid = z.clone(), code_grid(decoder, z, obs)
+        if self.z is not None and torch.equal(self.z, z):
+            return self.grid
+        if self.grid is not None and self.reuse > 0 and self.probe_values.numel():
+            sdf, _ = code_functions(decoder, z.detach().float())
+            drift = float((sdf(self.probe_points) - self.probe_values).abs().max())
+            if drift <= self.reuse:
+                return replace(self.grid, drift=drift)
+        self.z, self.grid = z.clone(), code_grid(decoder, z, obs)
+        self.built += 1
+        if self.grid is not None and self.reuse > 0:
+            self.probe_points, self.probe_values = grid_probes(self.grid, self.probes)
         return self.grid
+
+
+def grid_probes(grid: SDFGrid, count: int) -> tuple[Tensor, Tensor]:
+    """`count` of the grid's queried nodes: half those with the smallest |SDF|, half evenly spread over the rest,
+    as (points [K, 3], their stored values [K])."""
+    values = grid.volume.reshape(-1)
+    queried = torch.nonzero(values < 4.0 * grid.bound).reshape(-1)  # nodes beyond the ball's reach hold 4 x bound
+    if queried.numel() <= count:
+        chosen = queried
+    else:
+        order = queried[values[queried].abs().argsort()]
+        near, rest = order[: count // 2], order[count // 2 :]
+        spread = rest[torch.linspace(0, rest.numel() - 1, count - near.numel()).long()]
+        chosen = torch.cat([near, spread])
+    return grid.nodes(chosen), values[chosen]
 
 
 @dataclass
@@ -202,7 +240,7 @@ class Problem:
         D = self.mu.shape[0]
         self.columns = [D + sum(self.dofs[:g]) for g in range(groups.count)]
         self.width = D + sum(self.dofs)
-        self.grids = GridCache()
+        self.grids = GridCache(pose_settings.grid_reuse)
 
     def posed(self, state: State) -> list[ObservedView]:
         return [

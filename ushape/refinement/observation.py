@@ -76,7 +76,7 @@ class ObservationSettings:
         self, sdf: PointsSDF, origins: Tensor, directions: Tensor, far_limit: Tensor | None, grid: SDFGrid | None
     ) -> tuple[Tensor, Tensor]:
         """`ray_search.ray_minimum` with these settings: minimum SDF [R] and its point [R, 3]."""
-        margin = self.band * self.tau + self.grid_slack
+        margin = self.band * self.tau + self.grid_slack + (2.0 * grid.drift if grid is not None else 0.0)
         return ray_minimum(sdf, origins, directions, self.coarse, self.fine, self.bound, far_limit, grid, margin)
 
 

@@ -10,6 +10,8 @@ at `fine` points around the lowest coarse sample. The coarse samples can come fr
     (the silhouette's band plus the interpolation's error allowance) is far from the surface: its
     minimum is the interpolated one and it costs no decoder query. The others get the `fine + 1`
     decoder samples around the interpolated argmin, and their minimum is the lowest of those exact values.
+    A grid built at a nearby code (`SDFGrid.drift` > 0, `joint.GridCache`) is read the same way, with the
+    margin widened by twice the drift, so a ray the code has moved near the surface still gets exact samples.
 
 On the trained quickstart chairs decoder a 33-node grid's interpolated minimum was within 0.026 of the
 exact one on every ray of 12 views, and no ray whose exact minimum was within a 0.07 band of the surface
@@ -46,10 +48,19 @@ def ray_ball(
 
 @dataclass(frozen=True)
 class SDFGrid:
-    """A code's SDF at the nodes of [-bound, bound]^3, read by trilinear interpolation (points [P, 3] -> [P])."""
+    """A code's SDF at the nodes of [-bound, bound]^3, read by trilinear interpolation (points [P, 3] -> [P]).
+
+    `drift`: how far the SDF of the code now searched may be from the values stored (0: the grid was built at that
+    code; > 0: it was built at a nearby code and is reused, `joint.GridCache`); the search widens its margin by it."""
 
     volume: Tensor  # [1, 1, N, N, N], indexed (z, y, x) as grid_sample reads it
     bound: float
+    drift: float = 0.0
+
+    def nodes(self, flat: Tensor) -> Tensor:  # [K] indices into the flattened volume -> node points [K, 3]
+        n = self.volume.shape[-1]
+        index = torch.stack([flat % n, (flat // n) % n, flat // (n * n)], dim=-1)  # (x, y, z) from (z, y, x)
+        return index.float() * (2.0 * self.bound / (n - 1)) - self.bound
 
     def __call__(self, points: Tensor) -> Tensor:
         where = (points / self.bound).reshape(1, -1, 1, 1, 3).to(self.volume.dtype)
