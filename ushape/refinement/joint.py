@@ -193,8 +193,7 @@ class GridCache:
 def grid_probes(grid: SDFGrid, count: int) -> tuple[Tensor, Tensor]:
     """`count` of the grid's queried nodes: half those with the smallest |SDF|, half evenly spread over the rest,
     as (points [K, 3], their stored values [K])."""
-    values = grid.volume.reshape(-1)
-    queried = torch.nonzero(values < 4.0 * grid.bound).reshape(-1)  # nodes beyond the ball's reach hold 4 x bound
+    values, queried = grid.volume.reshape(-1), grid.queried()
     if queried.numel() <= count:
         chosen = queried
     else:

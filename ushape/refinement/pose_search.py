@@ -212,7 +212,7 @@ def _search(decoder, mu, var, views, groups, settings, pose_settings, starts, az
     Laplace posterior with each group's runner-up."""
     best = [h[0][1] for h in starts]
     schedule = pose_settings.tau_schedule or (1.0,)
-    grids = GridCache(pose_settings.grid_reuse)  # one grid of the fused code for every hypothesis screened, ...
+    grids = GridCache(pose_settings.grid_reuse)  # shared by every problem below: the screened hypotheses read one
 
     def about(hypotheses: list[Pose]) -> Problem:  # the problem with its pose priors about these hypotheses
         problem = Problem(

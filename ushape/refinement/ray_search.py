@@ -29,6 +29,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 PointsSDF = Callable[[Tensor], Tensor]  # points [P, 3] -> sdf [P]
+UNQUERIED = 4.0  # x bound: what an SDF grid holds at the nodes beyond the ball's reach (never an SDF in the ball)
 
 
 def ray_ball(
@@ -62,6 +63,9 @@ class SDFGrid:
         index = torch.stack([flat % n, (flat // n) % n, flat // (n * n)], dim=-1)  # (x, y, z) from (z, y, x)
         return index.float() * (2.0 * self.bound / (n - 1)) - self.bound
 
+    def queried(self) -> Tensor:  # [K] indices into the flattened volume of the nodes the decoder was asked
+        return torch.nonzero(self.volume.reshape(-1) < UNQUERIED * self.bound).reshape(-1)
+
     def __call__(self, points: Tensor) -> Tensor:
         where = (points / self.bound).reshape(1, -1, 1, 1, 3).to(self.volume.dtype)
         return F.grid_sample(self.volume, where, mode="bilinear", align_corners=True).reshape(-1)
@@ -76,7 +80,7 @@ def sdf_grid(sdf: PointsSDF, nodes: int, bound: float) -> SDFGrid:
     points = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), dim=-1).reshape(-1, 3)
     cell = 2.0 * bound / (nodes - 1)
     reach = points.norm(dim=-1) <= bound + math.sqrt(3.0) * cell
-    values = torch.full((points.shape[0],), 4.0 * bound)
+    values = torch.full((points.shape[0],), UNQUERIED * bound)
     values[reach] = sdf(points[reach]).float()
     volume = values.reshape(nodes, nodes, nodes).permute(2, 1, 0).contiguous()  # (x, y, z) -> (z, y, x)
     return SDFGrid(volume[None, None], bound)
