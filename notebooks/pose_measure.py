@@ -38,9 +38,9 @@ from ushape.reconstruction.pose_calibration import pose_settings_for  # noqa: E4
 from ushape.reconstruction.pretrained import open_model  # noqa: E402
 from ushape.reconstruction.refine_calibration import read_refinement_calibration  # noqa: E402
 from ushape.refinement import refine, refine_settings, world_views  # noqa: E402
-from ushape.refinement.joint import PoseGroups  # noqa: E402
+from ushape.refinement.joint import PoseGroups, PoseSettings  # noqa: E402
 from ushape.refinement.pose import Pose, log_so3, rotation_angle_deg  # noqa: E402
-from ushape.refinement.pose_search import refine_pose_and_shape  # noqa: E402
+from ushape.refinement.pose_search import refine_from_poses, refine_pose_and_shape  # noqa: E402
 
 
 def iou(decoder, code, voxels, frame) -> float:
@@ -74,6 +74,21 @@ def pose_row(decoder, fused, views, settings, pose_settings, azimuth_logp=None) 
     }
 
 
+def oracle_row(decoder, fused, views, settings, pose_settings, voxels, frame) -> dict:
+    truth = Pose.from_world_to_cam(views[0].world_to_cam)
+    groups = PoseGroups.from_cameras([v.world_to_cam for v in views])
+    start = time.perf_counter()
+    post = refine_from_poses(decoder, fused.mu, fused.var, views, groups, [truth], settings, pose_settings)
+    est = post.poses[0]
+    return {
+        "oracle_seconds": time.perf_counter() - start,
+        "oracle_rotation_error_deg": rotation_angle_deg(est.R, truth.R),
+        "oracle_translation_error": float(np.linalg.norm(est.R.T @ (truth.t - est.t) / est.scale)),
+        "oracle_scale": est.scale,
+        "oracle_iou": iou(decoder, post.mu, voxels, frame),
+    }
+
+
 def shape_rows(args, predictor, fusion, world, shape_id, done) -> list[dict]:
     decoder = predictor.decoder
     files = view_files(world.root, shape_id)
@@ -97,6 +112,8 @@ def shape_rows(args, predictor, fusion, world, shape_id, done) -> list[dict]:
         logp = predictor.azimuth_log_probs(images[chosen]) if args.viewpoint else None
         est = pose_row(decoder, fused, views, settings, args.pose_settings, None if logp is None else list(logp))
         code = est.pop("code")
+        if args.oracle:  # the joint refinement started at the true pose: what is left is not the search's
+            est.update(oracle_row(decoder, fused, views, settings, args.pose_settings, voxels, frame))
         rows.append({
             "shape": shape_id, "views": n, "chosen": chosen,
             "fused_iou": iou(decoder, fused.mu, voxels, frame),
@@ -135,7 +152,32 @@ def summary(path: Path) -> dict:
             "seconds_known": float(np.mean([r["known_seconds"] for r in part])),
             "seconds_pose": float(np.mean([r["seconds"] for r in part])),
         }
+        oracle = [r for r in part if "oracle_iou" in r]
+        if oracle:
+            out[n].update({
+                "oracle_shapes": len(oracle),
+                "iou_oracle_start": float(np.mean([r["oracle_iou"] for r in oracle])),
+                "iou_known_camera_same_shapes": float(np.mean([r["known_iou"] for r in oracle])),
+                "iou_pose_estimated_same_shapes": float(np.mean([r["pose_iou"] for r in oracle])),
+                "oracle_rotation_error_median_deg": float(np.median([r["oracle_rotation_error_deg"] for r in oracle])),
+                "oracle_translation_error_median": float(np.median([r["oracle_translation_error"] for r in oracle])),
+            })  # fmt: skip
     return out
+
+
+def pose_field(item: str) -> tuple[str, object]:
+    """'name=value' -> (name, value) of a PoseSettings field, typed as its default is."""
+    name, _, value = item.partition("=")
+    default = getattr(PoseSettings(), name, None)
+    if not value or name not in PoseSettings.__dataclass_fields__:
+        raise SystemExit(
+            f"--set {item}: expected FIELD=VALUE with FIELD one of {sorted(PoseSettings.__dataclass_fields__)}"
+        )
+    if isinstance(default, tuple):
+        return name, tuple(float(v) for v in value.split(","))
+    if default is None:
+        return name, float(value)
+    return name, type(default)(value)
 
 
 def main() -> None:
@@ -155,6 +197,18 @@ def main() -> None:
         help="ignore the model's viewpoint head: hypotheses from the masks alone",
     )
     parser.add_argument(
+        "--set",
+        nargs="+",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="PoseSettings fields for this measurement, e.g. code_stages=4 (numbers; tuples as 8,4,2,1)",
+    )
+    parser.add_argument(
+        "--oracle",
+        action="store_true",
+        help="also run the joint refinement from the true pose (refine_from_poses): the search's share of the gap",
+    )
+    parser.add_argument(
         "--grid-reuse",
         type=float,
         default=None,
@@ -166,11 +220,14 @@ def main() -> None:
         return
     torch.manual_seed(0)
     predictor = open_model(args.model, temperature=True)
+    if args.world is None and predictor.world is None:
+        parser.error("this model names no world (a shipped model): pass --world, the r2n2 world it was measured on")
     world = WorldIndex.load(args.world or predictor.world)
     args.fit = read_refinement_calibration(predictor.checkpoint, "masks")
     args.pose_settings = pose_settings_for(predictor.checkpoint)  # its fitted pose information scale, if any
     if args.grid_reuse is not None:
         args.pose_settings = replace(args.pose_settings, grid_reuse=args.grid_reuse)
+    args.pose_settings = replace(args.pose_settings, **dict(pose_field(item) for item in args.set))
     fusion = default_fusion(predictor)
     done = set()
     if args.out.is_file():

@@ -21,6 +21,7 @@ from ushape.reconstruction.pipeline import reconstruct
 from ushape.reconstruction.predictor import load_predictor
 from ushape.reconstruction.settings import ReconstructionSettings
 from ushape.reconstruction.view_depth import view_camera
+from ushape.refinement.joint import PoseSettings
 
 SMALL = ReconstructionSettings(resolution=24, depth_size=16, depth_codes=4, depth_steps=40)
 
@@ -260,6 +261,19 @@ def test_refine_masks_without_cameras_estimates_the_pose_and_relative_poses_shar
     summary = reconstruct(sphere_predictor, photos, BayesianKFusion(k=2), tmp_path / "out2", shared)
     groups = summary["refinement"]["pose"]["groups"]
     assert len(groups) == 1 and groups[0]["scale_std"] is not None  # one pose; the baseline tells the size
+    # the cameras' elevation and the tilt's prior (--elevation, --tilt-std): a sphere's rotation is unobservable, so
+    # its posterior std is the prior's on each of the object's axes, the tilt's about the horizontal x and z
+    upright = dataclasses.replace(shared, elevation=20.0, tilt_std=3.0)
+    pose = reconstruct(sphere_predictor, photos, BayesianKFusion(k=2), tmp_path / "out6", upright)["refinement"]["pose"]
+    assert pose["elevation_deg"] == 20.0 and pose["tilt_prior_deg"] == 3.0
+    tilt_x, turn, tilt_z = pose["groups"][0]["rotation_std_deg_axes"]
+    prior = PoseSettings()
+    about_vertical = prior.rotation_prior_with_head_deg if pose["viewpoint_head"] else prior.rotation_prior_deg
+    assert tilt_x == pytest.approx(3.0, rel=1e-3) and tilt_z == pytest.approx(3.0, rel=1e-3)
+    assert turn == pytest.approx(about_vertical, rel=1e-3)
+    with pytest.raises(ValueError, match="--tilt-std"):
+        reconstruct(sphere_predictor, photos, BayesianKFusion(k=2), tmp_path / "o6",
+                    dataclasses.replace(upright, tilt_std=0.0))  # fmt: skip
     given = dataclasses.replace(settings, pose="given")
     summary = reconstruct(sphere_predictor, photos, BayesianKFusion(k=2), tmp_path / "out3", given)
     assert summary["refinement"]["fallback"] == "no view has a camera"

@@ -197,6 +197,21 @@ def build_parser() -> argparse.ArgumentParser:
         help="npz with world_to_cam [V,4,4] of the images in any one frame (odometry, a turntable): the images "
         "share one estimated object pose and only their motion between each other is used",
     )
+    parser.add_argument(
+        "--elevation",
+        type=float,
+        default=DEFAULTS.elevation,
+        help="with the pose estimated: the cameras' elevation above the object's ground plane in degrees, where the "
+        "hypotheses start (default: R2N2's renders', 27.5)",
+    )
+    parser.add_argument(
+        "--tilt-std",
+        type=float,
+        default=DEFAULTS.tilt_std,
+        help="with the pose estimated: the prior's std in degrees of the object's tilt from --elevation (rotation "
+        "about its horizontal axes; default: the rotation's own). 3 for R2N2-style renders (elevation 25-30, "
+        "no camera roll), docs/pose.md",
+    )
     parser.add_argument("--cmap", default=DEFAULTS.cmap, help="matplotlib colormap for the std colours")
     parser.add_argument(
         "--precision",
@@ -233,6 +248,8 @@ def settings_from(args: argparse.Namespace) -> ReconstructionSettings:
         pose=args.pose,
         fov=args.fov,
         relative_poses=args.relative_poses,
+        elevation=args.elevation,
+        tilt_std=args.tilt_std,
         precision=args.precision,
     )
 

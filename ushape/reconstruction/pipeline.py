@@ -69,6 +69,11 @@ def check_settings(settings: ReconstructionSettings) -> None:
         raise ValueError("--relative-poses is read by the pose estimation: drop --pose given")
     if not 0 < settings.fov < 180:
         raise ValueError(f"fov (--fov) must be in (0, 180) degrees, got {settings.fov}")
+    if settings.elevation is not None and not -90 < settings.elevation < 90:
+        raise ValueError(f"elevation (--elevation) must be in (-90, 90) degrees, got {settings.elevation}")
+    if settings.tilt_std is not None and settings.tilt_std <= 0:
+        raise ValueError(f"tilt_std (--tilt-std) must be > 0 degrees (leave it out for the rotation's), got "
+                         f"{settings.tilt_std}")  # fmt: skip
     if settings.refine_starts < 0:
         raise ValueError(f"refine_starts (--refine-starts) must be >= 0, got {settings.refine_starts}")
     if settings.refine_size < REFINE_MIN_SIZE:

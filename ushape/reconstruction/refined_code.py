@@ -106,16 +106,24 @@ def pose_refined(
     )
     azimuth_logp = None if viewpoint is None else viewpoint()
     logps = None if azimuth_logp is None else list(azimuth_logp)
-    pose_settings = pose_settings or PoseSettings()
+    pose_settings = capture_settings(pose_settings or PoseSettings(), settings)
     posterior = refine_pose_and_shape(decoder, fused.mu, fused.var, unposed, groups, options, pose_settings, logps)
     record = {"mode": settings.refine, "starts": 0, **posterior.record()}
     record["pose"]["viewpoint_head"] = azimuth_logp is not None
     record["pose"]["pose_information_scale"] = pose_settings.pose_information_scale
+    record["pose"]["elevation_deg"] = pose_settings.elevation
+    record["pose"]["tilt_prior_deg"] = pose_settings.tilt_prior_deg
     record["views_with_camera"] = sum(v is not None for v in views)
     record["calibration"] = None if calibration is None else {k: calibration.get(k) for k in APPLIED}
     record["mu"] = posterior.mu.tolist()
     posed = [replace(v, world_to_cam=c) for v, c in zip(unposed, posterior.cameras)]
     return FusedCode(posterior.mu, posterior.cov, fused.kept), record, posed
+
+
+def capture_settings(pose_settings: PoseSettings, settings: ReconstructionSettings) -> PoseSettings:
+    """The pose search's settings with what --elevation and --tilt-std say of the cameras, where given."""
+    given = {"elevation": settings.elevation, "tilt_prior_deg": settings.tilt_std}
+    return replace(pose_settings, **{k: v for k, v in given.items() if v is not None})
 
 
 def r2n2_frame_of(predictor: Predictor) -> R2N2Frame | None:

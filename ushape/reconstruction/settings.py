@@ -36,6 +36,11 @@ class ReconstructionSettings:
     # npz with world_to_cam [V, 4, 4] of the input views in any one frame (odometry, a turntable): only their
     # motion relative to each other is used, and they share one estimated object pose
     relative_poses: str | None = None
+    # What the pose search assumes of the cameras (ushape.refinement.joint.PoseSettings): their elevation above the
+    # object's ground plane in degrees (None: R2N2's renders', 27.5) and the prior's std of the object's tilt about
+    # it (None: the rotation's own; an upright object and a known elevation range narrow it)
+    elevation: float | None = None
+    tilt_std: float | None = None
     # The decoder's: fp32, bf16, or auto (bf16 where faster: AMX CPUs, CUDA >= 8.0). Under bf16 the mesh
     # is searched in bf16 and placed by fp32 values; linearised and implicit stds use bf16 passes;
     # Monte Carlo stds stay fp32.

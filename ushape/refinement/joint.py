@@ -67,6 +67,9 @@ class PoseSettings:
     rotation_prior_deg: float = 60.0  # the prior's std about each hypothesis, per axis
     # ... where a viewpoint head chose the hypotheses: its azimuth is within 15 degrees for 92 % of val chairs
     rotation_prior_with_head_deg: float = 10.0
+    # The prior's std of the tilt (rotation about the object's two horizontal axes, x and z) where it differs from
+    # the rotation's: an upright object seen from a known elevation range (None: the rotation's std on every axis)
+    tilt_prior_deg: float | None = None
     translation_prior: float = 1.0  # ... in object units
     scale_prior: float = 0.15  # ... of the log scale (where a baseline makes it observable)
     distinct_deg: float = 30.0  # a runner-up is a pose at least this far from the winner
@@ -80,7 +83,9 @@ class PoseSettings:
 
     def precision(self, dofs: int, with_head: bool = False) -> Tensor:  # [dofs, dofs] float64
         rotation = self.rotation_prior_with_head_deg if with_head else self.rotation_prior_deg
-        stds = [math.radians(rotation)] * 3 + [self.translation_prior] * 3 + [self.scale_prior]
+        tilt = rotation if self.tilt_prior_deg is None else self.tilt_prior_deg
+        # the state's rotation is R_hyp exp(omega), omega in the object's axes: y is its vertical (the azimuth)
+        stds = [math.radians(a) for a in (tilt, rotation, tilt)] + [self.translation_prior] * 3 + [self.scale_prior]
         return torch.diag(1.0 / torch.tensor(stds[:dofs], dtype=torch.float64) ** 2)
 
 

@@ -206,6 +206,31 @@ def refine_pose_and_shape(
         return _search(decoder, mu, var, views, groups, settings, pose_settings, starts, azimuth_logp)
 
 
+def refine_from_poses(
+    decoder: torch.nn.Module,
+    mu: Tensor,  # [D] the fused code
+    var: Tensor,  # [D] or [D, D] its variance
+    views: Sequence[ObservedView],
+    groups: PoseGroups,
+    poses: Sequence[Pose],  # [G] one start per group, in its reference camera (a tracker's prediction, say)
+    settings: RefineSettings = RefineSettings(),
+    pose_settings: PoseSettings = PoseSettings(),
+) -> PosedPosterior:
+    """MAP (pose, code) and its Laplace posterior from one given pose per group, with no search over hypotheses:
+    the same screening and joint schedule as `refine_pose_and_shape`, the pose prior (`rotation_prior_deg`,
+    `translation_prior`, `scale_prior`) centred on the given poses. Where a pose is roughly known (a tracker, a
+    previous frame), and to tell the search's errors from the joint refinement's: started at the true pose, what
+    is left to the known-camera refinement is not the search's."""
+    if settings.mode != "masks":
+        raise ValueError("the pose is estimated from masks alone: use mode 'masks' (depth needs known cameras)")
+    if len(poses) != groups.count:
+        raise ValueError(f"{groups.count} pose groups but {len(poses)} starting poses")
+    if len(groups.group) != len(views):
+        raise ValueError(f"{len(views)} views but {len(groups.group)} group entries")
+    with frozen(decoder):
+        return _search(decoder, mu, var, views, groups, settings, pose_settings, [[(0.0, p)] for p in poses])
+
+
 def _search(decoder, mu, var, views, groups, settings, pose_settings, starts, azimuth_logp=None) -> PosedPosterior:
     """Screen every group's hypotheses at the fused code (the other groups at their best so far), run the joint LM
     from the best of all groups and from each group's distinct alternates, and return the lowest-energy run's
