@@ -10,7 +10,14 @@
 # fusion, refinement calibration and camera-azimuth head, and the export into ushape/pretrained/<category>/.
 # Every step resumes where it stopped: rerun the same command. A stage-1 folder committed under
 # ushape/pretrained/<category>/decoder/ (decoder, codes, DONE) is copied into outputs/decoders/ first,
-# so a fresh machine goes on with stage 2 instead of training stage 1 again.
+# so a fresh machine goes on with stage 2 instead of training stage 1 again (only where that folder's identity
+# is this config's: the same decoder, data and recipe).
+#
+# Another decoder: DECODER_OVERRIDES adds Hydra overrides to every step, e.g. the 4 x 512 of
+# notebooks/train_wide_stage1.sh, whose stage 1 this then finds finished and goes on from:
+#
+#   DECODER_OVERRIDES="decoder.hidden_dims=[512,512,512,512] stage1.module.lr_net=1.0e-3" \
+#     nohup bash notebooks/train_pretrained.sh chairs > outputs/pretrained_train.log 2>&1 &
 set -euo pipefail
 cd "$(dirname "$0")/.."
 VOXELS=${VOXELS:-$(realpath ../shared/data/ShapeNetVox32)}
@@ -20,6 +27,8 @@ THREADS=${THREADS:-$(nproc)}
 COMMON=(experiment=r2n2_cpu_2h "data.voxels_root=$VOXELS" data.n_val=100 data.n_test=100 data.num_workers=0
   stage1.latent_optim.samples_per_iter=1000 stage1.module.bf16=false stage1.latent_optim.bf16=false
   stage2.module.bf16=false)
+read -r -a EXTRA <<< "${DECODER_OVERRIDES:-}"
+COMMON+=("${EXTRA[@]}")
 
 decoder_dir() {  # the stage-1 folder train.py uses for this category's config
   .venv/bin/python notebooks/decoder_dir.py "category=$1" "${COMMON[@]}"
@@ -30,7 +39,11 @@ categories=("$@")
 for category in "${categories[@]}"; do
   committed=ushape/pretrained/$category/decoder
   folder=$(decoder_dir "$category")
-  if [[ -f $committed/DONE && ! -f $folder/DONE ]]; then
+  committed_hash=none
+  [[ -f $committed/identity.json ]] && committed_hash=$(.venv/bin/python -c "import json, sys
+from ushape.training.decoder_store import identity_hash as h; print(h(json.load(open(sys.argv[1]))))" \
+    "$committed/identity.json")
+  if [[ -f $committed/DONE && ! -f $folder/DONE && ${folder##*-} == "$committed_hash" ]]; then
     mkdir -p "$folder" && cp "$committed"/{decoder.pt,codes_train.pt,codes_val.pt,codes_test.pt,DONE} "$folder"/
     echo "stage 1 of $category restored from $committed into $folder"
   fi
