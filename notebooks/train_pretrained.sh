@@ -9,9 +9,10 @@
 # L2 heads of the FroDO* comparison on the same cached features), the ES run's temperature, shared-error
 # fusion, refinement calibration and camera-azimuth head, and the export into ushape/pretrained/<category>/.
 # Every step resumes where it stopped: rerun the same command. A stage-1 folder committed under
-# ushape/pretrained/<category>/decoder/ (decoder, codes, DONE) is copied into outputs/decoders/ first,
-# so a fresh machine goes on with stage 2 instead of training stage 1 again (only where that folder's identity
-# is this config's: the same decoder, data and recipe).
+# ushape/pretrained/<category>/decoder/ or notebooks/stage1/<its folder name>/ (decoder, codes, DONE,
+# identity.json) is copied into outputs/decoders/ first, so a fresh machine goes on with stage 2 instead of
+# training stage 1 again (only where that folder's identity is this config's: the same decoder, data and
+# recipe).
 #
 # Another decoder: DECODER_OVERRIDES adds Hydra overrides to every step, e.g. the 4 x 512 of
 # notebooks/train_wide_stage1.sh, whose stage 1 this then finds finished and goes on from:
@@ -37,16 +38,17 @@ decoder_dir() {  # the stage-1 folder train.py uses for this category's config
 categories=("$@")
 [[ ${#categories[@]} -gt 0 ]] || categories=(chairs tables)
 for category in "${categories[@]}"; do
-  committed=ushape/pretrained/$category/decoder
   folder=$(decoder_dir "$category")
-  committed_hash=none
-  [[ -f $committed/identity.json ]] && committed_hash=$(.venv/bin/python -c "import json, sys
+  # a finished stage 1 kept in the tree: the shipped model's, or another decoder's under notebooks/stage1/
+  for committed in "ushape/pretrained/$category/decoder" "notebooks/stage1/${folder##*/}"; do
+    [[ -f $committed/DONE && -f $committed/identity.json && ! -f $folder/DONE ]] || continue
+    committed_hash=$(.venv/bin/python -c "import json, sys
 from ushape.training.decoder_store import identity_hash as h; print(h(json.load(open(sys.argv[1]))))" \
-    "$committed/identity.json")
-  if [[ -f $committed/DONE && ! -f $folder/DONE && ${folder##*-} == "$committed_hash" ]]; then
+      "$committed/identity.json")
+    [[ ${folder##*-} == "$committed_hash" ]] || continue
     mkdir -p "$folder" && cp "$committed"/{decoder.pt,codes_train.pt,codes_val.pt,codes_test.pt,DONE} "$folder"/
     echo "stage 1 of $category restored from $committed into $folder"
-  fi
+  done
   for stage in decoder encoder; do
     OMP_NUM_THREADS=$THREADS nice -n 5 .venv/bin/python train.py "${COMMON[@]}" stage=$stage loss=es category="$category"
   done
