@@ -155,6 +155,19 @@ def hypothesis_rotations(
     return out
 
 
+def check_views(views: Sequence[ObservedView], groups: PoseGroups, settings: RefineSettings) -> None:
+    """A ValueError, before any work, where the pose cannot be estimated from these views: not masks, a group
+    entry per view missing, or a view whose mask does not outline the object."""
+    if settings.mode != "masks":
+        raise ValueError("the pose is estimated from masks alone: use mode 'masks' (depth needs known cameras)")
+    if len(groups.group) != len(views):
+        raise ValueError(f"{len(views)} views but {len(groups.group)} group entries")
+    for i, v in enumerate(views):
+        screened = screen_view(replace(v, world_to_cam=PLACEHOLDER_CAMERA), use_depth=False)
+        if screened.view is None:
+            raise ValueError(f"view {i}: {screened.fallback}: a pose needs a mask that outlines the object")
+
+
 # ---- the estimate ---------------------------------------------------------------------------------------------
 
 
@@ -171,14 +184,7 @@ def refine_pose_and_shape(
     """MAP (pose, code) and the Laplace posterior over both, from the views' masks, with no camera in the object's
     frame (module docstring), and from what the images say of their azimuth where a viewpoint head gave
     azimuth_logp. Every group needs at least one view whose mask shows the object."""
-    if settings.mode != "masks":
-        raise ValueError("the pose is estimated from masks alone: use mode 'masks' (depth needs known cameras)")
-    if len(groups.group) != len(views):
-        raise ValueError(f"{len(views)} views but {len(groups.group)} group entries")
-    for i, v in enumerate(views):
-        screened = screen_view(replace(v, world_to_cam=PLACEHOLDER_CAMERA), use_depth=False)
-        if screened.view is None:
-            raise ValueError(f"view {i}: {screened.fallback}: a pose needs a mask that outlines the object")
+    check_views(views, groups, settings)
     if azimuth_logp is not None and len(azimuth_logp) != len(views):
         raise ValueError(f"{len(views)} views but {len(azimuth_logp)} azimuth distributions")
     with frozen(decoder):
@@ -218,15 +224,12 @@ def refine_from_poses(
 ) -> PosedPosterior:
     """MAP (pose, code) and its Laplace posterior from one given pose per group, with no search over hypotheses:
     the same screening and joint schedule as `refine_pose_and_shape`, the pose prior (`rotation_prior_deg`,
-    `translation_prior`, `scale_prior`) centred on the given poses. Where a pose is roughly known (a tracker, a
+    `tilt_prior_deg`, `translation_prior`, `scale_prior`) centred on the given poses. Where a pose is roughly known (a tracker, a
     previous frame), and to tell the search's errors from the joint refinement's: started at the true pose, what
     is left to the known-camera refinement is not the search's."""
-    if settings.mode != "masks":
-        raise ValueError("the pose is estimated from masks alone: use mode 'masks' (depth needs known cameras)")
+    check_views(views, groups, settings)
     if len(poses) != groups.count:
         raise ValueError(f"{groups.count} pose groups but {len(poses)} starting poses")
-    if len(groups.group) != len(views):
-        raise ValueError(f"{len(views)} views but {len(groups.group)} group entries")
     with frozen(decoder):
         return _search(decoder, mu, var, views, groups, settings, pose_settings, [[(0.0, p)] for p in poses])
 
