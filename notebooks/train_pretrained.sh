@@ -10,7 +10,8 @@
 # fusion, refinement calibration and camera-azimuth head, and the export into ushape/pretrained/<category>/.
 # Every step resumes where it stopped: rerun the same command. A stage-1 folder committed under
 # ushape/pretrained/<category>/decoder/ or notebooks/stage1/<its folder name>/ (decoder, codes, DONE,
-# identity.json) is copied into outputs/decoders/ first, so a fresh machine goes on with stage 2 instead of
+# identity.json; or only the decoder, the training codes and FITTED, whose held-out codes are then
+# latent-optimised) is copied into outputs/decoders/ first, so a fresh machine goes on with stage 2 instead of
 # training stage 1 again (only where that folder's identity is this config's: the same decoder, data and
 # recipe).
 #
@@ -41,13 +42,16 @@ for category in "${categories[@]}"; do
   folder=$(decoder_dir "$category")
   # a finished stage 1 kept in the tree: the shipped model's, or another decoder's under notebooks/stage1/
   for committed in "ushape/pretrained/$category/decoder" "notebooks/stage1/${folder##*/}"; do
-    [[ -f $committed/DONE && -f $committed/identity.json && ! -f $folder/DONE ]] || continue
+    [[ (-f $committed/DONE || -f $committed/FITTED) && -f $committed/identity.json && ! -f $folder/DONE ]] || continue
     committed_hash=$(.venv/bin/python -c "import json, sys
 from ushape.training.decoder_store import identity_hash as h; print(h(json.load(open(sys.argv[1]))))" \
       "$committed/identity.json")
     [[ ${folder##*-} == "$committed_hash" ]] || continue
-    mkdir -p "$folder" && cp "$committed"/{decoder.pt,codes_train.pt,codes_val.pt,codes_test.pt,DONE} "$folder"/
-    echo "stage 1 of $category restored from $committed into $folder"
+    mkdir -p "$folder"
+    for file in decoder.pt codes_train.pt codes_val.pt codes_test.pt FITTED DONE; do
+      if [[ -f $committed/$file ]]; then cp "$committed/$file" "$folder"/; fi
+    done
+    echo "stage 1 of $category restored from $committed into $folder (no epoch runs again)"
   done
   for stage in decoder encoder; do
     OMP_NUM_THREADS=$THREADS nice -n 5 .venv/bin/python train.py "${COMMON[@]}" stage=$stage loss=es category="$category"

@@ -48,6 +48,7 @@ SCORES_FILE = "scores.json"
 # A stage-1 decoder's folder.
 DECODER_FILE = "decoder.pt"
 DONE_FILE = "DONE"
+FITTED_FILE = "FITTED"  # the epochs are done: decoder and training codes written, held-out codes may follow
 DECODER_REPORT_FILE = "report.json"
 BASIS_FILE = "basis.pt"
 IDENTITY_FILE = "identity.json"  # the config the decoder's folder hash was made from

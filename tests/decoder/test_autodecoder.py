@@ -1,6 +1,7 @@
 """The auto-decoder module: code table, training, resuming, and the finished stage-1 folder."""
 
 import json
+import shutil
 
 import lightning as L
 import pytest
@@ -93,6 +94,29 @@ def test_resume_continues_the_epoch_count(sphere_world, tiny_decoder_config, tmp
     assert json.loads((out / "DONE").read_text())["epochs"] == 3
     rebuilt = AutoDecoderModule.load_from_checkpoint(out / "checkpoints" / "last.ckpt")
     assert rebuilt.codes.num_embeddings == 4
+
+
+def test_a_folder_whose_epochs_are_done_finishes_its_held_out_codes_without_its_checkpoints(
+    sphere_world, tiny_decoder_config, tmp_path
+):
+    """Stopped while latent-optimising the test codes, with the checkpoints gone (a folder carried without its
+    optimiser state): the rerun trains no epoch, keeps the decoder and the val codes, and computes the test codes."""
+    trainer = {**FAST_TRAINER, "max_epochs": 2}
+    out = fit_decoder(sphere_world, tmp_path, tiny_decoder_config, trainer=trainer, **FAST_FIT)
+    fitted = json.loads((out / "FITTED").read_text())
+    assert fitted["epochs"] == 2 and fitted["max_epochs"] == 2
+    decoder_bytes, val_bytes = (out / "decoder.pt").read_bytes(), (out / "codes_val.pt").read_bytes()
+    test_codes = load_codes(out / "codes_test.pt")
+    for name in ("DONE", "codes_test.pt"):
+        (out / name).unlink()
+    shutil.rmtree(out / "checkpoints")
+    counter = EpochCounter()
+    fit_decoder(sphere_world, tmp_path, tiny_decoder_config, trainer=trainer, callbacks=[counter], **FAST_FIT)
+    assert counter.started == []  # no epoch ran, and none could have: no checkpoint was left
+    assert (out / "decoder.pt").read_bytes() == decoder_bytes and (out / "codes_val.pt").read_bytes() == val_bytes
+    again = load_codes(out / "codes_test.pt")
+    assert again.shape_ids == test_codes.shape_ids and again.codes.shape == test_codes.codes.shape
+    assert json.loads((out / "DONE").read_text())["epochs"] == 2
 
 
 def zero_crossing_radius(decoder, code) -> float:

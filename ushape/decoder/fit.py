@@ -1,7 +1,10 @@
 """Stage 1 end to end: train the auto-decoder, then fill a decoder folder (see `artifacts`).
 
 Resumable: an interrupted run restarts from `checkpoints/last.ckpt`, and the folder is marked
-complete (`DONE`) only after the decoder and all three code tables are written.
+complete (`DONE`) only after the decoder and all three code tables are written. Once the epochs are done
+the decoder and the training codes are written with a `FITTED` record (epochs, seconds), so a run stopped
+while it latent-optimises the held-out codes goes on from there, split by split, without the checkpoint: a
+stage-1 folder can travel without its 10 MB of optimiser state.
 """
 
 from __future__ import annotations
@@ -12,8 +15,11 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import lightning as L
+import torch
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint
 from lightning.pytorch.loggers import Logger, TensorBoardLogger
+from lightning.pytorch.utilities import rank_zero_only
+from torch import nn
 
 from ushape import atomic
 from ushape.builders import build, plain
@@ -24,6 +30,8 @@ from ushape.decoder.artifacts import (
     DONE_FILE,
     CodeTable,
     codes_file,
+    load_codes,
+    load_decoder,
     save_codes,
     save_decoder,
 )
@@ -31,7 +39,7 @@ from ushape.decoder.autodecoder import AutoDecoderModule
 from ushape.decoder.datamodule import SDFDataModule
 from ushape.decoder.latent_optim import optimise_codes
 from ushape.decoder.warm_start import warm_start
-from ushape.workspace import CHECKPOINT_DIR, LAST_FILE
+from ushape.workspace import CHECKPOINT_DIR, FITTED_FILE, LAST_FILE
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +70,33 @@ def fit_decoder(
     if (out_dir / DONE_FILE).exists():
         log.info("%s is complete (%s exists); nothing to do", out_dir, DONE_FILE)
         return out_dir
+    max_epochs = dict(trainer or {}).get("max_epochs")
+    fitted = fitted_record(out_dir, max_epochs)
+    if fitted is None:
+        fitted = fit_epochs(
+            world_root, out_dir, decoder, module, trainer, data, checkpoint_every_n_epochs, seed, logger, callbacks,
+            init_from,
+        )  # fmt: skip
+    if fitted is None or rank_zero_only.rank != 0:  # another DDP rank: rank 0 writes the decoder folder
+        return out_dir
+    started = time.time()
+    frozen = load_decoder(out_dir)
+    for split in ("val", "test"):
+        path = out_dir / codes_file(split)
+        if not codes_intact(path):
+            save_codes(path, reconstruct_split(frozen, world_root, split, latent_optim))
+    done = {k: v for k, v in fitted.items() if k != "max_epochs"}
+    done["total_seconds"] = round(fitted["train_seconds"] + time.time() - started, 1)
+    atomic.write_json(out_dir / DONE_FILE, {"world_root": str(Path(world_root).resolve()), **done})
+    return out_dir
+
+
+def fit_epochs(
+    world_root, out_dir: Path, decoder, module, trainer, data, checkpoint_every_n_epochs, seed, logger, callbacks,
+    init_from,
+) -> dict[str, Any] | None:  # fmt: skip
+    """The epochs of stage 1 (resumed from the last checkpoint where one is), then the decoder and the training
+    codes and the FITTED record written; returns that record (None on a DDP rank other than 0)."""
     L.seed_everything(seed, workers=True)  # before the module exists: its weights and codes are drawn at init
     datamodule = SDFDataModule(world_root, **dict(data or {}))
     model = build_module(decoder, module, datamodule.num_shapes)
@@ -74,27 +109,50 @@ def fit_decoder(
     fitter.fit(model, datamodule=datamodule, ckpt_path=str(resume) if resume else None)
     if fitter.interrupted:
         raise RuntimeError(f"stage-1 training was interrupted; rerun to resume from {out_dir / CHECKPOINT_DIR}")
-    if not fitter.is_global_zero:  # another DDP rank: rank 0 writes the decoder folder
-        return out_dir
-    train_seconds, done_training = clock.seconds, time.time()
-
+    if not fitter.is_global_zero:
+        return None
     model.cpu().eval()
     save_decoder(out_dir / DECODER_FILE, model.decoder, model.decoder_config)
     save_codes(out_dir / codes_file("train"), CodeTable(datamodule.train_set.shape_ids, model.bounded_codes()))
-    for split in ("val", "test"):
-        save_codes(out_dir / codes_file(split), reconstruct_split(model, world_root, split, latent_optim))
-    atomic.write_json(
-        out_dir / DONE_FILE,
-        {
-            "world_root": str(Path(world_root).resolve()),
-            "epochs": fitter.current_epoch,
-            "precision": str(fitter.precision),
-            "devices": fitter.world_size,
-            "train_seconds": round(train_seconds, 1),
-            "total_seconds": round(train_seconds + time.time() - done_training, 1),
-        },
-    )
-    return out_dir
+    for split in ("val", "test"):  # codes of an earlier decoder in this folder are not this one's
+        (out_dir / codes_file(split)).unlink(missing_ok=True)
+    record = {
+        "epochs": fitter.current_epoch,
+        "max_epochs": (trainer or {}).get("max_epochs"),
+        "precision": str(fitter.precision),
+        "devices": fitter.world_size,
+        "train_seconds": round(clock.seconds, 1),
+    }
+    atomic.write_json(out_dir / FITTED_FILE, record)
+    return record
+
+
+def fitted_record(out_dir: Path, max_epochs: int | None) -> dict[str, Any] | None:
+    """The FITTED record of a folder whose epochs are done for this max_epochs and whose decoder and training codes
+    load; None where the epochs must (still) run: from the last checkpoint, if there is one."""
+    path = out_dir / FITTED_FILE
+    if not path.is_file():
+        return None
+    try:
+        record = atomic.read_json_object(path, f"delete {path}: the epochs resume from the last checkpoint")
+        load_decoder(out_dir)
+        load_codes(out_dir / codes_file("train"))
+    except (FileNotFoundError, ValueError, KeyError, RuntimeError) as err:
+        log.warning("%s cannot be used (%s): stage 1 goes on from its last checkpoint", path, err)
+        return None
+    if record.get("max_epochs") != max_epochs:
+        return None  # trained for another number of epochs: the checkpoint resumes to this one
+    log.info("%s: the epochs are done (%s); going on with the held-out codes", out_dir, record)
+    return record
+
+
+def codes_intact(path: Path) -> bool:
+    """Whether a code table is there and loads (one interrupted or damaged is computed again)."""
+    try:
+        load_codes(path)
+    except (FileNotFoundError, ValueError, KeyError, RuntimeError):
+        return False
+    return True
 
 
 class TrainingClock(Callback):
@@ -161,13 +219,13 @@ def build_trainer(
 
 
 def reconstruct_split(
-    model: AutoDecoderModule, world_root: str | Path, split: str, latent_optim: Mapping[str, Any] | None
+    decoder: nn.Module, world_root: str | Path, split: str, latent_optim: Mapping[str, Any] | None
 ) -> CodeTable:
     """Codes of a held-out split by latent optimisation against the frozen decoder."""
     shapes = SDFSamplesDataset(world_root, split, samples_per_shape=2)  # optimise_codes draws its own
     if len(shapes) == 0:
-        return CodeTable([], model.bounded_codes()[:0])
+        return CodeTable([], torch.zeros(0, decoder.latent_size))
     started = time.time()
-    codes = optimise_codes(model.decoder, shapes, **dict(latent_optim or {}))
+    codes = optimise_codes(decoder, shapes, **dict(latent_optim or {}))
     log.info("latent-optimised %d %s codes in %.1f s", len(shapes), split, time.time() - started)
     return CodeTable(shapes.shape_ids, codes)
