@@ -1,6 +1,7 @@
 """The decoder's ceiling on real shapes: held-out codes scored against 3D-R2N2's own 32^3 voxels.
 
     PYTHONPATH=. python notebooks/r2n2_ceiling.py DECODER_DIR [--split test] [--shapes 100] [--out FILE.json]
+    PYTHONPATH=. python notebooks/r2n2_ceiling.py DECODER_DIR --split train --shapes 50 --level 0.4 [--world W]
 
 For each shape of the split of the r2n2 world that trained DECODER_DIR (its DONE names the world):
   - bound: the world's own voxel surface (the closed surface fitted to the voxels, stage 1's target),
@@ -51,12 +52,25 @@ def main() -> None:
     parser.add_argument("--split", default="test")
     parser.add_argument("--shapes", type=int, default=100)
     parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument(
+        "--level",
+        type=float,
+        default=None,
+        help="score at this level (voxels, one of LEVELS) and only --split: no val codes needed (e.g. --split train "
+        "on a folder whose held-out codes are not latent-optimised yet)",
+    )
+    parser.add_argument("--world", default=None, help="the r2n2 world (default: the one DONE names)")
     args = parser.parse_args()
-    world = WorldIndex.load(json.loads((args.decoder_dir / DONE_FILE).read_text())["world_root"])
+    done = args.decoder_dir / DONE_FILE
+    if args.world is None and not done.is_file():
+        parser.error(f"{args.decoder_dir} has no {DONE_FILE}: pass --world, the r2n2 world it was trained on")
+    world = WorldIndex.load(args.world or json.loads(done.read_text())["world_root"])
+    if args.level is not None and args.level not in LEVELS:
+        parser.error(f"--level {args.level}: one of {LEVELS}")
     decoder = load_decoder(args.decoder_dir).eval()
     started = time.time()
     results = {}
-    for split in ("val", args.split):
+    for split in ("val", args.split) if args.level is None else (args.split,):
         codes = load_codes(args.decoder_dir / codes_file(split))
         ids = world.shape_ids(split)[: args.shapes]
         rows = [bound_and_ceiling(world, decoder, codes, s) for s in ids]
@@ -65,7 +79,10 @@ def main() -> None:
             "bound": np.stack([b for b, _ in rows]),
             "ceiling": np.stack([c for _, c in rows]),
         }
-    best = int(np.argmax(results["val"]["bound"].mean(axis=0)))
+    if args.level is None:
+        best = int(np.argmax(results["val"]["bound"].mean(axis=0)))
+    else:
+        best = LEVELS.index(args.level)
     level = float(LEVELS[best])
     report = {"decoder_dir": str(args.decoder_dir), "level_voxels": level, "levels": [float(v) for v in LEVELS]}
     for split, found in results.items():
@@ -82,7 +99,8 @@ def main() -> None:
         }
         print(
             f"{split}: {len(found['ids'])} shapes, level {level:+.1f} voxel: bound IoU {bound.mean():.3f} "
-            f"(median {np.median(bound):.3f}), ceiling (own codes) {ceiling.mean():.3f} (median {np.median(ceiling):.3f})"
+            f"(median {np.median(bound):.3f}), ceiling (own codes) {ceiling.mean():.3f} "
+            f"(median {np.median(ceiling):.3f})"
         )
     report["seconds"] = round(time.time() - started, 1)
     if args.out:
