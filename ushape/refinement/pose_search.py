@@ -224,9 +224,9 @@ def refine_from_poses(
 ) -> PosedPosterior:
     """MAP (pose, code) and its Laplace posterior from one given pose per group, with no search over hypotheses:
     the same screening and joint schedule as `refine_pose_and_shape`, the pose prior (`rotation_prior_deg`,
-    `tilt_prior_deg`, `translation_prior`, `scale_prior`) centred on the given poses. Where a pose is roughly known (a tracker, a
-    previous frame), and to tell the search's errors from the joint refinement's: started at the true pose, what
-    is left to the known-camera refinement is not the search's."""
+    `tilt_prior_deg`, `translation_prior`, `scale_prior`) centred on the given poses. Where a pose is roughly
+    known (a tracker, a previous frame), and to tell the search's errors from the joint refinement's: started at
+    the true pose, what is left to the known-camera refinement is not the search's."""
     check_views(views, groups, settings)
     if len(poses) != groups.count:
         raise ValueError(f"{groups.count} pose groups but {len(poses)} starting poses")
