@@ -101,6 +101,10 @@ def _load(path: Path, what: str) -> dict:
     return blob
 
 
+# What loading a damaged or half-written decoder or code table raises.
+LOAD_ERRORS = (FileNotFoundError, ValueError, KeyError, RuntimeError)
+
+
 def folder_problem(folder: str | Path) -> str | None:
     """Why a finished (DONE) decoder folder cannot be used, or None: its decoder and code tables must load."""
     folder = Path(folder)
@@ -108,7 +112,7 @@ def folder_problem(folder: str | Path) -> str | None:
         load_decoder(folder)
         for split in ("train", "val", "test"):
             load_codes(folder / codes_file(split))
-    except (FileNotFoundError, ValueError, KeyError, RuntimeError) as err:
+    except LOAD_ERRORS as err:
         return str(err)
     return None
 

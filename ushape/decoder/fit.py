@@ -28,6 +28,7 @@ from ushape.data.sdf_dataset import SDFSamplesDataset
 from ushape.decoder.artifacts import (
     DECODER_FILE,
     DONE_FILE,
+    LOAD_ERRORS,
     CodeTable,
     codes_file,
     load_codes,
@@ -118,7 +119,7 @@ def fit_epochs(
         (out_dir / codes_file(split)).unlink(missing_ok=True)
     record = {
         "epochs": fitter.current_epoch,
-        "max_epochs": (trainer or {}).get("max_epochs"),
+        "max_epochs": dict(trainer or {}).get("max_epochs"),
         "precision": str(fitter.precision),
         "devices": fitter.world_size,
         "train_seconds": round(clock.seconds, 1),
@@ -137,7 +138,7 @@ def fitted_record(out_dir: Path, max_epochs: int | None) -> dict[str, Any] | Non
         record = atomic.read_json_object(path, f"delete {path}: the epochs resume from the last checkpoint")
         load_decoder(out_dir)
         load_codes(out_dir / codes_file("train"))
-    except (FileNotFoundError, ValueError, KeyError, RuntimeError) as err:
+    except LOAD_ERRORS as err:
         log.warning("%s cannot be used (%s): stage 1 goes on from its last checkpoint", path, err)
         return None
     if record.get("max_epochs") != max_epochs:
@@ -150,7 +151,7 @@ def codes_intact(path: Path) -> bool:
     """Whether a code table is there and loads (one interrupted or damaged is computed again)."""
     try:
         load_codes(path)
-    except (FileNotFoundError, ValueError, KeyError, RuntimeError):
+    except LOAD_ERRORS:
         return False
     return True
 
