@@ -2,12 +2,13 @@
 
     PYTHONPATH=. python notebooks/r2n2_ceiling.py DECODER_DIR [--split test] [--shapes 100] [--out FILE.json]
     PYTHONPATH=. python notebooks/r2n2_ceiling.py DECODER_DIR --split train --shapes 50 --level 0.4 [--world W]
+    PYTHONPATH=. python notebooks/r2n2_ceiling.py DECODER_DIR --codes REFIT_DIR --split test --level 0.4
 
 For each shape of the split of the r2n2 world that trained DECODER_DIR (its DONE names the world):
   - bound: the world's own voxel surface (the closed surface fitted to the voxels, stage 1's target),
     scored against the voxels at every level of `ushape.metrics.voxel_iou.LEVELS`;
-  - ceiling: the shape's own code (latent-optimised on its SDF samples, codes_<split>.pt) under the
-    frozen decoder, scored the same way.
+  - ceiling: the shape's own code (latent-optimised on its SDF samples, codes_<split>.pt; from --codes DIR
+    where given, e.g. notebooks/refit_codes.py's) under the frozen decoder, scored the same way.
 The level is the one at which the bound is best on the val split (the first --shapes val shapes): the
 voxelisation rule that reproduces R2N2's voxels from the surface they came from. Prints and writes
 mean / median IoU of both at that level, and per shape.
@@ -60,6 +61,7 @@ def main() -> None:
         "on a folder whose held-out codes are not latent-optimised yet)",
     )
     parser.add_argument("--world", default=None, help="the r2n2 world (default: the one DONE names)")
+    parser.add_argument("--codes", type=Path, default=None, help="read codes_<split>.pt here (default: DECODER_DIR)")
     args = parser.parse_args()
     done = args.decoder_dir / DONE_FILE
     if args.world is None and not done.is_file():
@@ -71,7 +73,7 @@ def main() -> None:
     started = time.time()
     results = {}
     for split in ("val", args.split) if args.level is None else (args.split,):
-        codes = load_codes(args.decoder_dir / codes_file(split))
+        codes = load_codes((args.codes or args.decoder_dir) / codes_file(split))
         ids = world.shape_ids(split)[: args.shapes]
         rows = [bound_and_ceiling(world, decoder, codes, s) for s in ids]
         results[split] = {
