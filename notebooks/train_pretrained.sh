@@ -20,6 +20,9 @@
 #
 #   DECODER_OVERRIDES="decoder.hidden_dims=[512,512,512,512] stage1.module.lr_net=1.0e-3" \
 #     nohup bash notebooks/train_pretrained.sh chairs > outputs/pretrained_train.log 2>&1 &
+#
+# EXPORT_ROOT=notebooks/candidates exports the model there instead of into the package (ushape/pretrained/), so
+# that a candidate is measured (`--model` takes its folder's path) before it replaces the shipped one.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 VOXELS=${VOXELS:-$(realpath ../shared/data/ShapeNetVox32)}
@@ -63,5 +66,5 @@ from ushape.training.decoder_store import identity_hash as h; print(h(json.load(
     .venv/bin/python reconstruct.py --fit-refinement masks --fit-shapes 20 --run "$run"
   [[ -f $run/checkpoints/viewpoint.pt ]] || .venv/bin/python reconstruct.py --fit-viewpoint --run "$run"
   .venv/bin/python -c "import sys; from ushape.reconstruction.pretrained import export_pretrained as e
-print(e(sys.argv[1], sys.argv[2], category=sys.argv[2]))" "$run" "$category"
+print(e(sys.argv[1], sys.argv[2], sys.argv[3], category=sys.argv[2]))" "$run" "$category" "${EXPORT_ROOT:-ushape/pretrained}"
 done

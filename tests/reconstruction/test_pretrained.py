@@ -41,6 +41,22 @@ def test_an_exported_run_loads_by_name_and_encodes_as_the_run(tiny_run, tmp_path
         pretrained.load_pretrained("sofas")
 
 
+def test_an_exported_model_folder_outside_the_package_loads_by_its_path(tiny_run, tmp_path, monkeypatch):
+    folder = pretrained.export_pretrained(tiny_run["run"], "candidate", tmp_path / "candidates", category="chairs")
+    monkeypatch.setattr(pretrained, "PRETRAINED_DIR", tmp_path / "package")  # ships nothing
+    assert pretrained.available_models() == [] and pretrained.model_dir(str(folder)) == folder
+    images = torch.rand(2, 3, 16, 16, generator=torch.Generator().manual_seed(2))
+    (mu_a, _), (mu_b, _) = (
+        load_predictor(tiny_run["run"]).encode(images),
+        pretrained.load_pretrained(str(folder)).encode(images),
+    )
+    torch.testing.assert_close(
+        mu_b, mu_a, rtol=0, atol=pretrained.EXPORT_TOLERANCE * float(mu_a.abs().max().clamp(min=1.0))
+    )
+    with pytest.raises(FileNotFoundError, match="or give the path of an exported model folder"):
+        pretrained.model_dir(str(tmp_path / "candidates"))  # a folder without model.json
+
+
 def test_the_backbone_is_left_out_only_when_it_is_the_packages_frozen_imagenet_one():
     config = {
         "backbone": {"_target_": "ushape.encoder.backbones.efficientnet_lite0", "pretrained": True},

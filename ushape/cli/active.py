@@ -53,7 +53,10 @@ def build_parser() -> argparse.ArgumentParser:
     source = parser.add_mutually_exclusive_group()
     source.add_argument("--run", help="run folder of `python train.py` (default: the newest encoder run)")
     source.add_argument("--checkpoint", help="an encoder .ckpt instead of a run folder")
-    source.add_argument("--model", help="a model shipped with ushape, by name (needs --world: its data world)")
+    source.add_argument(
+        "--model",
+        help="a model shipped with ushape, by name, or an exported model folder's path (needs --world: its data world)",
+    )
     parser.add_argument("--root", default=".", help="where outputs/runs is searched for the newest run")
     parser.add_argument("--world", default=None, help="the world folder (default: the run's own)")
     parser.add_argument("--split", default="test", help="the split the shape is taken from")

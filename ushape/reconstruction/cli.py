@@ -80,8 +80,8 @@ def build_parser() -> argparse.ArgumentParser:
     source.add_argument(
         "--model",
         default=None,
-        help=f"a model shipped with ushape, by name ({', '.join(available_models()) or 'none in this installation'}); "
-        "calibrated: its temperature and fusion fit apply",
+        help=f"a model shipped with ushape, by name ({', '.join(available_models()) or 'none in this installation'}), "
+        "or an exported model folder's path; calibrated: its temperature and fusion fit apply",
     )
     parser.add_argument("--root", default=".", help="where outputs/runs is searched for the newest run")
     parser.add_argument(

@@ -76,14 +76,18 @@ def available_models() -> list[str]:
 
 
 def model_dir(name: str) -> Path:
-    """The folder of a shipped model (a name from `available_models`), or an error listing them."""
+    """The folder of a shipped model (a name from `available_models`; it wins over a folder of that name) or the
+    path of an exported model folder (`export_pretrained(run, name, out_root)`: a candidate measured before it
+    ships), else an error listing the shipped ones."""
     name = name.removeprefix(PREFIX)
     folder = PRETRAINED_DIR / name
+    if not (folder / MODEL_FILE).is_file() and (Path(name) / MODEL_FILE).is_file():
+        folder = Path(name)
     if not (folder / MODEL_FILE).is_file():
         shipped = available_models()
         raise MissingInputError(
             f"no shipped model {name!r}; this installation has {', '.join(shipped) if shipped else 'none'} "
-            f"(ushape/pretrained/<name>/{MODEL_FILE})"
+            f"(ushape/pretrained/<name>/{MODEL_FILE}), or give the path of an exported model folder"
         )
     return folder
 
