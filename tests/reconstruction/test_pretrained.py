@@ -45,6 +45,7 @@ def test_an_exported_model_folder_outside_the_package_loads_by_its_path(tiny_run
     folder = pretrained.export_pretrained(tiny_run["run"], "candidate", tmp_path / "candidates", category="chairs")
     monkeypatch.setattr(pretrained, "PRETRAINED_DIR", tmp_path / "package")  # ships nothing
     assert pretrained.available_models() == [] and pretrained.model_dir(str(folder)) == folder
+    assert pretrained.load_pretrained(str(folder)).model_name == str(folder)  # summary.json names the folder
     images = torch.rand(2, 3, 16, 16, generator=torch.Generator().manual_seed(2))
     (mu_a, _), (mu_b, _) = (
         load_predictor(tiny_run["run"]).encode(images),

@@ -144,7 +144,9 @@ def load_model_folder(folder: Path, temperature: bool = True) -> Predictor:
         mask_mode=str(record.get("mask_mode", "gt_mask")),
         world=None,
         r2n2_frame=frame_from_record(record.get("r2n2_frame")),
-        model_name=str(record.get("name", folder.name)),
+        # a shipped model by its name; a folder outside the package (a candidate) by its path, not the name it
+        # shares with the shipped model of its category
+        model_name=str(record.get("name", folder.name)) if folder.parent == PRETRAINED_DIR else str(folder),
         viewpoint=stored_viewpoint(folder / ENCODER_FILE),
     )
 
