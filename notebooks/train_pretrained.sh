@@ -21,7 +21,7 @@
 #   DECODER_OVERRIDES="decoder.hidden_dims=[512,512,512,512] stage1.module.lr_net=1.0e-3" \
 #     nohup bash notebooks/train_pretrained.sh chairs > outputs/pretrained_train.log 2>&1 &
 #
-# EXPORT_ROOT=notebooks/candidates exports the model there instead of into the package (ushape/pretrained/), so
+# EXPORT_ROOT=outputs/candidates exports the model there instead of into the package (ushape/pretrained/), so
 # that a candidate is measured (`--model` takes its folder's path) before it replaces the shipped one.
 set -euo pipefail
 cd "$(dirname "$0")/.."
