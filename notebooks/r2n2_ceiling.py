@@ -47,6 +47,14 @@ def bound_and_ceiling(world: WorldIndex, decoder, codes, shape_id: str) -> tuple
     return bound, ious_at_levels(decoded, voxels, side, centre, scale)
 
 
+def trained_world(parser: argparse.ArgumentParser, decoder_dir: Path, world: str | None) -> str:
+    """The r2n2 world's root: `world` where given, else the one the stage-1 folder's DONE names."""
+    done = decoder_dir / DONE_FILE
+    if world is None and not done.is_file():
+        parser.error(f"{decoder_dir} has no {DONE_FILE}: pass --world, the r2n2 world it was trained on")
+    return world or json.loads(done.read_text())["world_root"]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("decoder_dir", type=Path)
@@ -63,10 +71,7 @@ def main() -> None:
     parser.add_argument("--world", default=None, help="the r2n2 world (default: the one DONE names)")
     parser.add_argument("--codes", type=Path, default=None, help="read codes_<split>.pt here (default: DECODER_DIR)")
     args = parser.parse_args()
-    done = args.decoder_dir / DONE_FILE
-    if args.world is None and not done.is_file():
-        parser.error(f"{args.decoder_dir} has no {DONE_FILE}: pass --world, the r2n2 world it was trained on")
-    world = WorldIndex.load(args.world or json.loads(done.read_text())["world_root"])
+    world = WorldIndex.load(trained_world(parser, args.decoder_dir, args.world))
     if args.level is not None and args.level not in LEVELS:
         parser.error(f"--level {args.level}: one of {LEVELS}")
     decoder = load_decoder(args.decoder_dir).eval()

@@ -15,14 +15,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
 import torch
 
-from ushape import atomic
-from ushape.decoder.artifacts import DONE_FILE, codes_file, load_decoder, save_codes
-from ushape.decoder.fit import reconstruct_split
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from r2n2_ceiling import trained_world  # noqa: E402
+
+from ushape import atomic  # noqa: E402
+from ushape.decoder.artifacts import codes_file, load_decoder, save_codes  # noqa: E402
+from ushape.decoder.fit import reconstruct_split  # noqa: E402
 
 
 def main() -> None:
@@ -35,10 +39,7 @@ def main() -> None:
     parser.add_argument("--lr", type=float, default=1e-2)
     parser.add_argument("--world", default=None, help="the r2n2 world (default: the one DONE names)")
     args = parser.parse_args()
-    done = args.decoder_dir / DONE_FILE
-    if args.world is None and not done.is_file():
-        parser.error(f"{args.decoder_dir} has no {DONE_FILE}: pass --world, the world it was trained on")
-    world = args.world or json.loads(done.read_text())["world_root"]
+    world = trained_world(parser, args.decoder_dir, args.world)
     decoder = load_decoder(args.decoder_dir).eval()
     setting = {
         "iterations": args.iterations,
