@@ -1,10 +1,12 @@
 """Encoder only, single views: a real-shape model against its FroDO* (L2) twin trained on the same cached features.
 
     PYTHONPATH=. python notebooks/pretrained_es_vs_l2.py ES_MODEL L2_MODEL WORLD [--shapes 100] [--views 0 6]
+        [--split test]
 
-ES_MODEL / L2_MODEL: `pretrained:<name>` or run folders. Each test shape's views are encoded by both, and each
-code scored against R2N2's 32^3 voxels at +0.4 voxel (as notebooks/pretrained_measure.py); prints a row a shape,
-then the means and how often ES scores higher.
+ES_MODEL / L2_MODEL: `pretrained:<name>` or run folders. Each test shape's views (`--split train`: each
+training shape's, the heads' own fit) are encoded by both, and each code scored against R2N2's 32^3 voxels at
++0.4 voxel (as notebooks/pretrained_measure.py); prints a row a shape, then the means and how often ES scores
+higher.
 """
 
 from __future__ import annotations
@@ -34,11 +36,12 @@ def main() -> None:
     parser.add_argument("world")
     parser.add_argument("--shapes", type=int, default=100)
     parser.add_argument("--views", type=int, nargs="+", default=[0, 6])
+    parser.add_argument("--split", default="test", help="train: the views the heads were trained on (their fit)")
     args = parser.parse_args()
     world = WorldIndex.load(args.world)
     models = {"ES": open_model(args.es, temperature=args.es.startswith("pretrained:")), "L2": open_model(args.l2)}
     scores = {name: [] for name in models}
-    for shape_id in world.shape_ids("test")[: args.shapes]:
+    for shape_id in world.shape_ids(args.split)[: args.shapes]:
         centre, scale, side, source = shape_frame(world, shape_id)
         voxels, _ = read_r2n2_voxels(source)
         files = view_files(world.root, shape_id)
