@@ -62,14 +62,35 @@ def ridge(x: np.ndarray, y: np.ndarray, lam: float) -> tuple[np.ndarray, np.ndar
     return w, mean
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def probe_parser(doc: str) -> argparse.ArgumentParser:
+    """The arguments the feature probes share: MODEL WORLD OUT.json, --train and --val shapes."""
+    parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("model")
     parser.add_argument("world")
     parser.add_argument("out", type=Path)
     parser.add_argument("--train", type=int, default=300)
     parser.add_argument("--val", type=int, default=100)
-    args = parser.parse_args()
+    return parser
+
+
+def views_iou(predictor, world: WorldIndex, ids: list[str], views: int = 2):
+    """A scorer: codes [len(ids) * views, D] (each shape's views in turn) -> mean IoU against R2N2's voxels."""
+    frames = {s: shape_frame(world, s) for s in ids}
+    voxels = {s: read_r2n2_voxels(frames[s][3])[0] for s in ids}
+
+    def mean_iou(codes) -> float:
+        scores = []
+        for k, shape_id in enumerate(np.repeat(ids, views)):
+            centre, scale, side, _ = frames[shape_id]
+            values = numpy_sdf(code_sdf_fn(predictor.decoder, torch.as_tensor(codes[k], dtype=torch.float32)))
+            scores.append(voxel_iou(values, voxels[shape_id], side, centre, scale, PROTOCOL_LEVEL))
+        return float(np.mean(scores))
+
+    return mean_iou
+
+
+def main() -> None:
+    args = probe_parser(__doc__).parse_args()
     started = time.time()
     predictor = open_model(args.model, temperature=True)
     encoder = predictor.model.encoder.eval()
@@ -96,16 +117,7 @@ def main() -> None:
     val_ids = world.shape_ids("val")[: args.val]
     x_train, y_train, _ = read(train_ids, None)
     x_val, y_val, heads = read(val_ids, [0, 6])
-    frames = {s: shape_frame(world, s) for s in val_ids}
-    voxels = {s: read_r2n2_voxels(frames[s][3])[0] for s in val_ids}
-
-    def mean_iou(codes: np.ndarray) -> float:
-        scores = []
-        for k, shape_id in enumerate(np.repeat(val_ids, 2)):
-            centre, scale, side, _ = frames[shape_id]
-            values = numpy_sdf(code_sdf_fn(predictor.decoder, torch.as_tensor(codes[k], dtype=torch.float32)))
-            scores.append(voxel_iou(values, voxels[shape_id], side, centre, scale, PROTOCOL_LEVEL))
-        return float(np.mean(scores))
+    mean_iou = views_iou(predictor, world, val_ids)
 
     heads = np.concatenate(heads)
     report = {"train_views": len(y_train), "val_views": len(y_val), "heads": {}, "ridge": {}}
