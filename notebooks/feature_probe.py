@@ -25,15 +25,14 @@ import torch
 import torch.nn.functional as F
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from pose_measure import iou  # noqa: E402
 from pretrained_measure import codes_dir  # noqa: E402
 from r2n2_ceiling import shape_frame  # noqa: E402
 
 from ushape.data.layout import WorldIndex  # noqa: E402
 from ushape.data.real.r2n2_voxels import read_r2n2_voxels  # noqa: E402
 from ushape.decoder.artifacts import codes_file, load_codes  # noqa: E402
-from ushape.decoder.query import code_sdf_fn  # noqa: E402
 from ushape.encoder.datamodule import view_files  # noqa: E402
-from ushape.metrics.voxel_iou import PROTOCOL_LEVEL, numpy_sdf, voxel_iou  # noqa: E402
 from ushape.reconstruction.pretrained import open_model  # noqa: E402
 
 LAMBDAS = (1e2, 1e3, 1e4, 1e5)
@@ -79,11 +78,10 @@ def views_iou(predictor, world: WorldIndex, ids: list[str], views: int = 2):
     voxels = {s: read_r2n2_voxels(frames[s][3])[0] for s in ids}
 
     def mean_iou(codes) -> float:
-        scores = []
-        for k, shape_id in enumerate(np.repeat(ids, views)):
-            centre, scale, side, _ = frames[shape_id]
-            values = numpy_sdf(code_sdf_fn(predictor.decoder, torch.as_tensor(codes[k], dtype=torch.float32)))
-            scores.append(voxel_iou(values, voxels[shape_id], side, centre, scale, PROTOCOL_LEVEL))
+        pairs = zip(codes, np.repeat(ids, views))
+        scores = [
+            iou(predictor.decoder, torch.as_tensor(c, dtype=torch.float32), voxels[s], frames[s][:3]) for c, s in pairs
+        ]
         return float(np.mean(scores))
 
     return mean_iou

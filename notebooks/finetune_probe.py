@@ -89,12 +89,14 @@ def train(upper, head, data, codes, epochs: int, finetune: bool, seed: int = 0) 
     opt = torch.optim.AdamW(groups, weight_decay=0.05)
     generator = torch.Generator().manual_seed(seed)
     means, maps = data
+    upper.eval()  # batch norm keeps ImageNet's statistics: batches of 64 4x4 maps would not estimate them
+    head.train()
+    if not finetune:  # the frozen stages' features, once for every epoch
+        with torch.no_grad():
+            fixed = torch.cat([upper(x) for x in maps.split(256)])
     for _ in range(epochs):
-        upper.eval()  # batch norm keeps ImageNet's statistics: batches of 64 4x4 maps would not estimate them
-        head.train()
         for batch in torch.randperm(len(codes), generator=generator).split(64):
-            with torch.set_grad_enabled(finetune):
-                feats = upper(maps[batch])
+            feats = upper(maps[batch]) if finetune else fixed[batch]
             loss = (head(torch.cat([means[batch], feats], 1)) - codes[batch]).square().sum(1).mean()
             opt.zero_grad()
             loss.backward()

@@ -23,21 +23,22 @@ import argparse
 import json
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from pose_measure import iou as voxels_iou  # noqa: E402
 from pretrained_measure import codes_dir, spread  # noqa: E402
 from r2n2_ceiling import shape_frame  # noqa: E402
 
 from ushape.data.layout import WorldIndex  # noqa: E402
 from ushape.data.real.r2n2_voxels import read_r2n2_voxels  # noqa: E402
 from ushape.decoder.artifacts import codes_file, load_codes  # noqa: E402
-from ushape.decoder.query import code_sdf_fn, frozen  # noqa: E402
+from ushape.decoder.query import frozen  # noqa: E402
 from ushape.encoder.datamodule import view_files  # noqa: E402
-from ushape.metrics.voxel_iou import PROTOCOL_LEVEL, numpy_sdf, voxel_iou  # noqa: E402
 from ushape.reconstruction.calibrated_fusion import default_fusion  # noqa: E402
 from ushape.reconstruction.pretrained import open_model  # noqa: E402
 from ushape.reconstruction.refine_calibration import read_refinement_calibration  # noqa: E402
@@ -108,11 +109,7 @@ def main() -> None:
         fused = fusion(mu, var)
         truth = codes.lookup(shape_id)
         centre, scale_r2n2, side, source = shape_frame(world, shape_id)
-        voxels, _ = read_r2n2_voxels(source)
-
-        def iou(code) -> float:
-            values = numpy_sdf(code_sdf_fn(decoder, code))
-            return voxel_iou(values, voxels, side, centre, scale_r2n2, PROTOCOL_LEVEL)  # noqa: B023
+        iou = partial(voxels_iou, decoder, voxels=read_r2n2_voxels(source)[0], frame=(centre, scale_r2n2, side))
 
         def prior_term(code) -> float:  # 0.5 (z - mu)^T Sigma^-1 (z - mu) of the fused prior
             dz = (code - fused.mu).double()
