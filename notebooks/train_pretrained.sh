@@ -6,8 +6,9 @@
 # Per category, one job at a time on all cores (two 1-thread jobs side by side ran 2.0-2.2 steps/s each,
 # one 2-thread job ~5): the r2n2 world (1,000 / 100 / 100 shapes, ~5 min), stage 1 (200 epochs of the
 # 4 x 256 decoder, ~45 min at 2 threads on an AMD EPYC), then stage 2 (the frozen-feature ES heads, and the
-# L2 heads of the FroDO* comparison on the same cached features), the ES run's temperature, shared-error
-# fusion, refinement calibration and camera-azimuth head, and the export into ushape/pretrained/<category>/.
+# L2 heads of the FroDO* comparison on the same cached features, trained last), the ES run's temperature,
+# shared-error fusion, refinement calibration and camera-azimuth head, and the export into
+# ushape/pretrained/<category>/. Stage 2's runs are outputs/pretrained_runs/<decoder folder>-<settings>/encoder_{es,l2}.
 # Every step resumes where it stopped: rerun the same command. A stage-1 folder committed under
 # ushape/pretrained/<category>/decoder/ or notebooks/stage1/<its folder name>/ (decoder, codes, DONE,
 # identity.json; or only the decoder, the training codes and FITTED, whose held-out codes are then
@@ -56,15 +57,22 @@ from ushape.training.decoder_store import identity_hash as h; print(h(json.load(
     done
     echo "stage 1 of $category restored from $committed into $folder (no epoch runs again)"
   done
-  for stage in decoder encoder; do
-    OMP_NUM_THREADS=$THREADS nice -n 5 .venv/bin/python train.py "${COMMON[@]}" stage=$stage loss=es category="$category"
-  done
-  OMP_NUM_THREADS=$THREADS nice -n 5 .venv/bin/python train.py "${COMMON[@]}" stage=encoder loss=l2 category="$category"
-  run=$(ls -td outputs/runs/*/*_encoder_"${category}"_es | head -1)
+  OMP_NUM_THREADS=$THREADS nice -n 5 .venv/bin/python train.py "${COMMON[@]}" stage=decoder loss=es category="$category"
+  # Stage 2 writes into folders named by the decoder and these exact settings, so a rerun resumes the heads
+  # from their last.ckpt (a finished one, with its run.json, is not trained again).
+  runs="outputs/pretrained_runs/${folder##*/}-$(printf '%s\n' "${COMMON[@]}" | sha1sum | cut -c1-8)"
+  encoder() {  # loss
+    [[ -f $runs/encoder_$1/run.json ]] && return
+    OMP_NUM_THREADS=$THREADS nice -n 5 .venv/bin/python train.py "${COMMON[@]}" stage=encoder loss="$1" \
+      category="$category" "hydra.run.dir=$runs/encoder_$1"
+  }
+  encoder es
+  run=$runs/encoder_es
   [[ -f $run/checkpoints/temperature.json ]] || .venv/bin/python reconstruct.py --fit-temperature --run "$run"
   [[ -f $run/checkpoints/refinement_calibration.json ]] ||
     .venv/bin/python reconstruct.py --fit-refinement masks --fit-shapes 20 --run "$run"
   [[ -f $run/checkpoints/viewpoint.pt ]] || .venv/bin/python reconstruct.py --fit-viewpoint --run "$run"
   .venv/bin/python -c "import sys; from ushape.reconstruction.pretrained import export_pretrained as e
 print(e(sys.argv[1], sys.argv[2], sys.argv[3], category=sys.argv[2]))" "$run" "$category" "${EXPORT_ROOT:-ushape/pretrained}"
+  encoder l2  # FroDO*'s heads on the same cached features, for the comparison rows (not part of the export)
 done
