@@ -174,8 +174,9 @@ def evaluated_dir(sphere_world, sphere_codes, tmp_path_factory):
     return tmp / "out"
 
 
-def fit_sphere_run(world, tmp_path):
-    """A finished run folder, tmp_path/run (run.json + checkpoint), trained a few steps on the ellipsoid world."""
+def fit_sphere_run(world, tmp_path, run_name: str = "run", max_epochs: int = 1):
+    """A finished run folder, tmp_path/<run_name> (run.json + checkpoint), trained a few steps on the ellipsoid world
+    (one batch an epoch; an existing folder resumes from its last.ckpt)."""
     from ushape.encoder.fit import fit_encoder
 
     decoder_dir = tmp_path / "decoder"
@@ -183,7 +184,7 @@ def fit_sphere_run(world, tmp_path):
     table = CodeTable(list(RADII), torch.tensor([[code_for_radius(r), 0.0, 0.0] for r in RADII.values()]))
     for split in ("train", "val", "test"):
         save_codes(decoder_dir / codes_file(split), table)
-    run_dir = tmp_path / "run"
+    run_dir = tmp_path / run_name
     encoder = tiny_encoder_config(3)
     checkpoint = fit_encoder(
         world.root,
@@ -195,7 +196,7 @@ def fit_sphere_run(world, tmp_path):
         data={"image_size": 16, "batch_size": 8},
         trainer={
             "accelerator": "cpu",
-            "max_epochs": 1,
+            "max_epochs": max_epochs,
             "limit_train_batches": 1,
             "limit_val_batches": 1,
             "num_sanity_val_steps": 0,

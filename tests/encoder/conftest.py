@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from eval_world import sphere_world  # noqa: F401  (the ellipsoid world a run folder is trained on)
 from tiny_render_world import tiny_encoder_config, write_decoder_folder, write_render_world
 
 LATENT = 8

@@ -17,7 +17,7 @@ from ushape.checkpoints import resume_point
 from ushape.encoder.datamodule import EncoderDataModule
 from ushape.encoder.feature_cache import FeatureDataModule
 from ushape.encoder.module import EncoderModule
-from ushape.workspace import BEST_NAME, CHECKPOINT_DIR, LAST_FILE
+from ushape.workspace import BEST_FILE, BEST_NAME, CHECKPOINT_DIR, LAST_FILE
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +69,11 @@ def fit_encoder(
     model = build(module, EncoderModule, decoder_path=str(decoder_dir), encoder=plain(encoder), loss=plain(loss))
     if cached:
         datamodule = cached_feature_data(datamodule, model, train_passes)
-    checkpoint = ModelCheckpoint(dirpath=ckpt_dir, filename=BEST_NAME, monitor=monitor, mode="min")
+    # One best.ckpt, rewritten in place: with Lightning's version counter a resumed run whose recorded best lay
+    # elsewhere (a run folder moved or copied) wrote best-v1.ckpt beside a stale best.ckpt.
+    checkpoint = ModelCheckpoint(
+        dirpath=ckpt_dir, filename=BEST_NAME, monitor=monitor, mode="min", enable_version_counter=False
+    )
     # Lightning's save_last writes last.ckpt only in an epoch that also saved a top-k checkpoint, so
     # after the best epoch it stopped moving and a resume lost every later epoch. This one is
     # rewritten (same name, no -v1) at the end of every epoch.
@@ -90,7 +94,9 @@ def fit_encoder(
     if resume is not None:
         log.info("resuming stage-2 training from %s", resume)
     run.fit(model, datamodule=datamodule, ckpt_path=str(resume) if resume else None)
-    best = checkpoint.best_model_path or last.best_model_path
-    if not best:
-        raise RuntimeError(f"training wrote no checkpoint into {ckpt_dir}; check trainer limits (max_epochs/max_steps)")
-    return Path(best)
+    # The files in this folder, not the callbacks' recorded paths: a resumed run recorded those where its
+    # checkpoint was written, which is elsewhere if the run folder was moved since.
+    for best in (ckpt_dir / BEST_FILE, ckpt_dir / LAST_FILE):
+        if best.is_file():
+            return best.resolve()
+    raise RuntimeError(f"training wrote no checkpoint into {ckpt_dir}; check trainer limits (max_epochs/max_steps)")
