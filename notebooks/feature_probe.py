@@ -9,7 +9,8 @@ taken in one pass: `stages` (every stage's spatial mean and the head's, what the
 what they are). A ridge regression from each (standardised) to the model's training codes is fitted on the
 training views and scored on the val views: latent L2 against the val shapes' own codes, and IoU against
 R2N2's voxels at +0.4 voxel (as pretrained_measure.py), beside the model's own heads on the same views and the
-mean training code (the image ignored).
+mean training code (the image ignored). `--size S`: the backbone reads the images resized to S px (bilinear)
+instead of the model's own size (ImageNet's networks were trained at 224 px; the shipped heads read 128).
 """
 
 from __future__ import annotations
@@ -88,7 +89,9 @@ def views_iou(predictor, world: WorldIndex, ids: list[str], views: int = 2):
 
 
 def main() -> None:
-    args = probe_parser(__doc__).parse_args()
+    parser = probe_parser(__doc__)
+    parser.add_argument("--size", type=int, default=None, help="backbone input size (default: the model's)")
+    args = parser.parse_args()
     started = time.time()
     predictor = open_model(args.model, temperature=True)
     encoder = predictor.model.encoder.eval()
@@ -101,7 +104,8 @@ def main() -> None:
         for shape_id in ids:
             files = view_files(world.root, shape_id)
             images, _, _ = predictor.load_images([files[v] for v in views] if views else files)
-            means, grids = two_poolings(encoder, images)
+            sized = images if args.size is None else F.interpolate(images, size=args.size, mode="bilinear")
+            means, grids = two_poolings(encoder, sized)
             feats["stages"].append(means.numpy())
             feats["grid2"].append(grids.numpy())
             codes += [np.asarray(train_codes.lookup(shape_id) if views is None else val_codes.lookup(shape_id))] * len(

@@ -12,6 +12,7 @@ MODEL as notebooks/pretrained_measure.py takes it. For each of the first test sh
   shipped MAP's.
 - `rays64`: 64 rays a side; `steps40`: 40 LM steps; `sigma025`: sigma_mask 0.25 (the masks weigh 4x against
   the prior).
+- `pop_corr`, `pop_product`: the prior given the training codes' correlations (`with_population`).
 Each result is scored against R2N2's 32^3 voxels (+0.4 voxel, as pretrained_measure.py), with the refinement's
 record (energies at the start and end, steps) and the prior's part of the energy at the result and at the
 own code (0.5 Mahalanobis^2 under the fused Gaussian; the rest of an energy is the masks'). Resumable.
@@ -46,7 +47,35 @@ from ushape.refinement import refine, refine_settings, world_views  # noqa: E402
 from ushape.refinement.posterior import levenberg_marquardt, prior_precision  # noqa: E402
 from ushape.refinement.views import screen_view  # noqa: E402
 
-VARIANTS = ("shipped", "own_start", "rays64", "steps40", "sigma025")
+VARIANTS = ("shipped", "own_start", "rays64", "steps40", "sigma025", "pop_corr", "pop_product")
+SHRINK = 0.1  # the training codes' correlation is shrunk this far towards the identity (conditioning)
+
+
+def population(train_codes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Mean [D] and covariance [D, D] (float64, shrunk towards its diagonal) of the training codes [N, D]."""
+    codes = train_codes.double()
+    cov = torch.cov(codes.T)
+    diag = torch.diag(torch.diagonal(cov))
+    return codes.mean(0), (1 - SHRINK) * cov + SHRINK * diag
+
+
+def with_population(variant: str, mu, var, pop_mu, pop_cov) -> tuple[torch.Tensor, torch.Tensor]:
+    """The prior a population variant refines under, as (mean [D], covariance [D, D]):
+    - `pop_corr`: the fused Gaussian's own variances, correlated as the training codes are (the encoder's
+      diagonal says how far each coordinate may move, the population which moves go together);
+    - `pop_product`: the fused Gaussian times the training codes' Gaussian (counts the population twice,
+      since the encoder learned from it: an upper bound on what a tighter prior does)."""
+    var = var.double()
+    if variant == "pop_corr":
+        std = torch.sqrt(torch.diagonal(pop_cov))
+        corr = pop_cov / (std[:, None] * std[None, :])
+        root = var.sqrt()
+        return mu, root[:, None] * corr * root[None, :]
+    precision = torch.diag(1.0 / var) + torch.linalg.inv(pop_cov)
+    cov = torch.linalg.inv(precision)
+    cov = 0.5 * (cov + cov.T)
+    mean = cov @ (mu.double() / var + torch.linalg.solve(pop_cov, pop_mu))
+    return mean.float(), cov
 
 
 def settings(variant: str, scale: float):
@@ -91,6 +120,7 @@ def main() -> None:
     predictor = open_model(args.model, temperature=True)
     world = WorldIndex.load(args.world or predictor.world)
     codes = load_codes(codes_dir(predictor, None) / codes_file("test"))
+    pop_mu, pop_cov = population(load_codes(codes_dir(predictor, None) / codes_file("train")).codes)
     fit = read_refinement_calibration(predictor.checkpoint, "masks")
     scale = fit["information_scale"] if fit else 1.0
     fusion = default_fusion(predictor)
@@ -124,6 +154,9 @@ def main() -> None:
             if variant == "own_start":
                 code, (e_own, e_end) = from_own_code(decoder, fused, truth, views, options)
                 record = {"energy_start": e_own, "energy_end": e_end}
+            elif variant.startswith("pop_"):
+                post = refine(decoder, *with_population(variant, fused.mu, fused.var, pop_mu, pop_cov), views, options)
+                code, record = post.mu, post.record()
             else:
                 post = refine(decoder, fused.mu, fused.var, views, options)
                 code, record = post.mu, post.record()
