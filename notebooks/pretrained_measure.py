@@ -43,7 +43,7 @@ from ushape.propagation.field import code_mesh  # noqa: E402
 from ushape.propagation.linearised import latent_jacobian, latent_variance  # noqa: E402
 from ushape.reconstruction.calibrated_fusion import default_fusion  # noqa: E402
 from ushape.reconstruction.pretrained import open_model  # noqa: E402
-from ushape.reconstruction.refine_calibration import at_views, read_refinement_calibration  # noqa: E402
+from ushape.reconstruction.refine_calibration import read_refinement_calibration  # noqa: E402
 from ushape.refinement import refine, refine_settings, world_views  # noqa: E402
 
 REFINE_SIZE = 32  # reconstruct.py's --refine-size default
@@ -104,9 +104,8 @@ def shape_rows(args, predictor, fusion, world, codes, shape_id, done) -> list[di
         post = refine(decoder, fused.mu, fused.var, world_views(world.views_path(shape_id), chosen), options)
         seconds = time.perf_counter() - start
         cov = post.cov if post.fallback is None else torch.diag(fused.var)
-        at_n = at_views(fit, n)  # the SDF fit for n views where stored per view count
-        refined_t = at_n["sdf_temperature"] if at_n and "sdf_temperature" in at_n else 1.0
-        refined_floor = at_n.get("sdf_floor", 0.0) if at_n else 0.0
+        refined_t = fit["sdf_temperature"] if fit and "sdf_temperature" in fit else 1.0
+        refined_floor = fit.get("sdf_floor", 0.0) if fit else 0.0
         row = {**base, "views": n, "chosen": chosen}
         row["fused"] = scores(decoder, fused.mu, voxels, frame, reference)
         row["fused"]["latent"] = {"abs_error": (fused.mu - truth).abs().tolist(), "std": fused.var.sqrt().tolist()}

@@ -298,7 +298,6 @@ def test_fit_refinement_stores_a_calibration_that_the_refinement_then_applies(ti
     from ushape.recalibration.refine_information import SCALE_GRID
     from ushape.recalibration.temperature import CALIBRATION_GRID
     from ushape.reconstruction.refine_calibration import (
-        at_views,
         calibration_path,
         fit_and_store_refinement_calibration,
         read_refinement_calibration,
@@ -321,9 +320,6 @@ def test_fit_refinement_stores_a_calibration_that_the_refinement_then_applies(ti
         seen = record["seen"]  # the floors where the views saw the sample and where they did not
         assert seen["floor_seen"] in floor_grid(misfit) and seen["floor_unseen"] in floor_grid(misfit)
         assert seen["floor_seen"] <= seen["floor_unseen"] and all(0 < f < 1 for f in seen["seen_fraction"])
-        by_views = record["by_views"]  # the same fits on each view count alone, in view_counts' order
-        assert all(t in CALIBRATION_GRID for t in by_views["sdf_temperature"] + by_views["seen"]["sdf_temperature"])
-        assert len(by_views["sdf_calibration_after"]) == 2 and len(by_views["seen"]["floor_unseen"]) == 2
         assert read_refinement_calibration(checkpoint, "masks") == record
         assert read_refinement_calibration(checkpoint, "depth") is None
         views = sorted((tiny_run["world"] / "renders" / "test_0").glob("*.png"))[:2]
@@ -331,19 +327,14 @@ def test_fit_refinement_stores_a_calibration_that_the_refinement_then_applies(ti
         summary = reconstruct(sphere_predictor, views, BayesianKFusion(k=2), tmp_path / "out", settings)
         applied = summary["refinement"]["calibration"]
         assert applied["information_scale"] == record["information_scale"] and applied["size"] == 12
-        # The mesh's std is drawn with the seen model at the refinement's 2 views (between the 1- and 3-view fits):
-        # its factor, its floors per vertex (no one floor).
-        seen_at_2 = at_views(record, 2)["seen"]
-        assert applied["at_views"] == 2 and applied["seen"] == seen_at_2
-        assert summary["sdf_temperature"] == seen_at_2["sdf_temperature"] and summary["sdf_floor"] is None
-        assert 0 < summary["refinement"]["seen_vertices"] < 1
-        assert summary["mesh"]["std_mean"] >= seen_at_2["floor_seen"] * (1 - 1e-6)  # every vertex carries a floor
+        # The mesh's std is drawn with the seen model: its factor, its floors per vertex (no one floor).
+        assert summary["sdf_temperature"] == seen["sdf_temperature"] and summary["sdf_floor"] is None
+        assert applied["seen"] == seen and 0 < summary["refinement"]["seen_vertices"] < 1
+        assert summary["mesh"]["std_mean"] >= seen["floor_seen"] * (1 - 1e-6)  # every vertex carries a floor
         run = type("Run", (), {"predictor": sphere_predictor})()
         method = RefineMethod("masks", size=12, calibrated=True)
         assert method.settings_for(run).information_scale == record["information_scale"]
         assert method.sdf_calibration_for(run) == (record["sdf_temperature"], record["sdf_floor"] or None)
-        one_view = (by_views["sdf_temperature"][0], by_views["sdf_floor"][0] or None)  # at a fitted count: its own
-        assert method.sdf_calibration_for(run, 1) == pytest.approx(one_view)
         with pytest.raises(ValueError, match="--fit-refinement depth"):
             RefineMethod("depth", calibrated=True).settings_for(run)
         assert RefineMethod("depth").settings_for(run).information_scale == 1.0  # not calibrated: its own knobs

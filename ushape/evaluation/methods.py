@@ -51,9 +51,8 @@ class ReconstructionMethod:
         """The per-view Gaussians [N, D] the protocols fuse for these views (default: the encoder's own)."""
         return encodings
 
-    def sdf_calibration_for(self, run: EncoderRun, n_views: int | None = None) -> tuple[float, float | None] | None:
-        """(T_sdf, floor) of this method's SDF variance for a run, on n_views views (None: any number; default:
-        `sdf_calibration`, the same for all)."""
+    def sdf_calibration_for(self, run: EncoderRun) -> tuple[float, float | None] | None:
+        """(T_sdf, floor) of this method's SDF variance for a run (default: `sdf_calibration`, the same for all)."""
         return self.sdf_calibration
 
     def after_fusion(self, context, fused: Estimate, keys: Sequence[ViewKey], min_scale: float) -> Estimate:
@@ -68,12 +67,11 @@ class ReconstructionMethod:
         return type(self).after_fusion is not ReconstructionMethod.after_fusion
 
 
-def sdf_variance_calibration(run, n_views: int | None = None) -> tuple[float | None, float | None]:
-    """(T_sdf, floor) for the SDF variance of the Gaussians a run reconstructs with from n_views views: its
-    method's own where fitted (`ReconstructionMethod.sdf_calibration`), else the run's single-view T_sdf and no
-    floor."""
+def sdf_variance_calibration(run) -> tuple[float | None, float | None]:
+    """(T_sdf, floor) for the SDF variance of the Gaussians a run reconstructs with: its method's own where
+    fitted (`ReconstructionMethod.sdf_calibration`), else the run's single-view T_sdf and no floor."""
     method = run.method
-    own = method.sdf_calibration_for(run, n_views) if method is not None and method.changes_fused else None
+    own = method.sdf_calibration_for(run) if method is not None and method.changes_fused else None
     return own if own is not None else (run.predictor.sdf_temperature, None)
 
 

@@ -31,7 +31,7 @@ from ushape.errors import InputError
 from ushape.evaluation.methods import ReconstructionMethod
 from ushape.evaluation.views import Estimate, ViewKey, encoder_tag
 from ushape.fusion.strategies import check_optional_number
-from ushape.reconstruction.refine_calibration import at_views, read_refinement_calibration
+from ushape.reconstruction.refine_calibration import read_refinement_calibration
 from ushape.refinement import ObservedView, RefineSettings, crop_view, refine, refine_settings, world_views
 
 CACHE_FOLDER = "refine"
@@ -132,14 +132,9 @@ class RefineMethod(ReconstructionMethod):
         fit = self.run_calibration(run)
         return self.settings if fit is None else replace(self.settings, information_scale=fit["information_scale"])
 
-    def sdf_calibration_for(self, run, n_views: int | None = None) -> tuple[float, float | None] | None:
-        """(T_sdf, floor) of the refined posterior's SDF variance: the run's fit for n_views views where
-        `calibrated` (`at_views`; None: the fit across view counts), else the method's own."""
+    def sdf_calibration_for(self, run) -> tuple[float, float | None] | None:
         fit = self.run_calibration(run)
-        if fit is None:
-            return self.sdf_calibration
-        fit = fit if n_views is None else at_views(fit, n_views)
-        return fit["sdf_temperature"], fit["sdf_floor"] or None
+        return self.sdf_calibration if fit is None else (fit["sdf_temperature"], fit["sdf_floor"] or None)
 
     def after_fusion(self, context, fused: Estimate, keys: Sequence[ViewKey], min_scale: float) -> Estimate:
         """`fused` refined on the views `keys` as the evaluation cropped them at min_scale (cached)."""

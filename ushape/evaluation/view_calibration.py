@@ -14,7 +14,6 @@ read its diagonal (each dimension's marginal, exact for them).
 
 from __future__ import annotations
 
-from functools import partial
 from typing import Callable, Mapping, Sequence
 
 import torch
@@ -99,13 +98,12 @@ def calibration_across_views(
     decoder=None,
     sdf_temperature: float | None = None,
     after: Sequence[AfterSubset] | None = None,  # per shape: a method's step after fusion
-    # n views -> (T_sdf, floor) fitted for the step's Gaussians on that many views (None: none fitted)
-    after_sdf: Callable[[int], tuple[float, float | None] | None] | None = None,
+    after_sdf: tuple[float, float | None] | None = None,  # (T_sdf, floor) fitted for the step's Gaussians
 ) -> list[dict]:
     """One row per (rule, n views): latent (and with `sdf`, SDF) calibration scores over every shape.
 
     sdf_temperature scales every rule's propagated SDF variance, except a rule's that carries its own and,
-    after a method's step, the method's own `after_sdf(n)` where given (`rule_sdf_temperature`).
+    after a method's step, the method's own `after_sdf` where given (`rule_sdf_temperature`).
 
     Every rule fuses the same subsets of views. A shape with fewer than n views is left out of that n's
     rows; `n_shapes` says how many were scored.
@@ -115,7 +113,6 @@ def calibration_across_views(
         generator = torch.Generator().manual_seed(seed + n)
         usable = [i for i, (mu, _, _) in enumerate(views) if mu.shape[0] >= n]
         subsets = {i: view_subsets(views[i][0].shape[0], n, draws, generator) for i in usable}
-        step_sdf = None if after_sdf is None else after_sdf(n)
         for name, rule in rules.items():
             latent_err, latent_std, sdf_err, sdf_std = [], [], [], []
             for i in usable:
@@ -124,7 +121,7 @@ def calibration_across_views(
                 fused_mu, fused_var, error = fused_errors(rule, mu, var, code, subsets[i], step)
                 latent_err.append(error.reshape(-1)), latent_std.append(marginal(fused_var).sqrt().reshape(-1))
                 if sdf is not None:
-                    calibration = rule_sdf_temperature(rule, sdf_temperature, after, step_sdf)
+                    calibration = rule_sdf_temperature(rule, sdf_temperature, after, after_sdf)
                     e, s = clamped_sdf_errors(decoder, fused_mu, fused_var, *sdf[i], *calibration)
                     sdf_err.append(e.reshape(-1)), sdf_std.append(s.reshape(-1))
             if not usable:
@@ -256,7 +253,7 @@ def view_calibration_protocol(
         decoder=decoder,
         sdf_temperature=sdf_t,
         after=None if after is None else steps,
-        after_sdf=None if after is None or run.method is None else partial(run.method.sdf_calibration_for, run),
+        after_sdf=None if after is None or run.method is None else run.method.sdf_calibration_for(run),
     )
     log_fallbacks(run.spec.name, fallbacks, "Table V fused view subsets")
     return [{"encoder": run.spec.name, "label": run.spec.label, **row} for row in rows]

@@ -18,8 +18,7 @@ as reconstruct.py refines it. `refinement_calibration.json` = {mode: {"informati
 "sdf_floor", "latent_calibration_before", "latent_calibration_after", "sdf_calibration_before",
 "sdf_calibration_after", "sdf_decoder_misfit", "seen", "view_counts", "n_shapes", "size", "fusion", "fallbacks"}},
 "seen" = {"sdf_temperature", "floor_seen", "floor_unseen", "sdf_calibration_after", "seen_after", "unseen_after",
-"seen_fraction", "tolerance"}, "by_views" = the same SDF fits made on each view count alone (`sdf_fits_by_views`),
-which a refinement reads at its own count (`at_views`).
+"seen_fraction", "tolerance"}.
 """
 
 from __future__ import annotations
@@ -27,7 +26,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 import trimesh
 
@@ -162,62 +160,6 @@ def sdf_groups(decoder, refined: list[dict], scale: float) -> list[tuple[torch.T
     return groups
 
 
-def sdf_fits_by_views(groups: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]], misfit: float) -> dict[str, Any]:
-    """The SDF variance's factor and floors fitted on each view count's group alone (lists in the groups' order).
-
-    Why: one fit for 1, 3 and 10 views is a compromise. The Laplace posterior narrows as views add up faster than
-    the refined code's error falls (the views share the decoder's misfit), so the factor a count needs grows with
-    it: on the shipped tables model's test shapes 0.30 at 1 view, 0.71 at 10 (docs/pretrained.md).
-    `at_views` reads them for a refinement's own count."""
-    agnostic = [fit_sdf_recalibration([(e, s)], misfit) for e, s, _ in groups]
-    seen = [fit_sdf_recalibration_seen([group], misfit) for group in groups]
-    return {
-        "sdf_temperature": [fit[0] for fit in agnostic],
-        "sdf_floor": [fit[1] for fit in agnostic],
-        "sdf_calibration_after": [fit[3][0] for fit in agnostic],
-        "seen": {
-            "sdf_temperature": [fit["sdf_temperature"] for fit in seen],
-            "floor_seen": [fit["floor_seen"] for fit in seen],
-            "floor_unseen": [fit["floor_unseen"] for fit in seen],
-            "sdf_calibration_after": [fit["after"][0] for fit in seen],
-        },
-    }
-
-
-def at_views(fit: dict[str, Any] | None, n_views: int) -> dict[str, Any] | None:
-    """The fit as it applies to a refinement on n_views views: its SDF factor and floors (the seen model's too)
-    those of `by_views`, interpolated linearly in log(views) between the fitted counts (log of the factor; held
-    at the nearest count outside them); `at_views` records n_views. A fit without `by_views` (stored before it)
-    is returned as it is."""
-    if fit is None or not fit.get("by_views"):
-        return fit
-    if n_views < 1:
-        raise ValueError(f"a refinement is on at least 1 view, got {n_views}")
-    by = fit["by_views"]
-    counts = np.log(np.asarray(fit["view_counts"], dtype=np.float64))
-    x = float(np.clip(np.log(n_views), counts[0], counts[-1]))
-
-    def read(values, log_scale: bool = False) -> float:
-        values = np.asarray(values, dtype=np.float64)
-        if log_scale:
-            return float(np.exp(np.interp(x, counts, np.log(values))))
-        return float(np.interp(x, counts, values))
-
-    seen = {
-        **fit["seen"],
-        "sdf_temperature": read(by["seen"]["sdf_temperature"], log_scale=True),
-        "floor_seen": read(by["seen"]["floor_seen"]),
-        "floor_unseen": read(by["seen"]["floor_unseen"]),
-    }
-    return {
-        **fit,
-        "sdf_temperature": read(by["sdf_temperature"], log_scale=True),
-        "sdf_floor": read(by["sdf_floor"]),
-        "seen": seen,
-        "at_views": int(n_views),
-    }
-
-
 def fit_refinement_calibration(
     predictor: Predictor,
     mode: str,
@@ -246,7 +188,6 @@ def fit_refinement_calibration(
     groups = sdf_groups(predictor.decoder, refined, scale)
     temperature, floor, before, after = fit_sdf_recalibration([(e, s) for e, s, _ in groups], misfit)
     seen = fit_sdf_recalibration_seen(groups, misfit)
-    by_views = sdf_fits_by_views(groups, misfit)
     return {
         "information_scale": scale,
         "latent_calibration_before": latent_before,
@@ -266,7 +207,6 @@ def fit_refinement_calibration(
             "seen_fraction": [float(s.float().mean()) for _, _, s in groups],
             "tolerance": SEEN_TOLERANCE,
         },
-        "by_views": by_views,
         "view_counts": sorted({r["n"] for r in refined}),
         "n_shapes": len(shapes),
         "size": size,

@@ -13,7 +13,6 @@ import torch
 from ushape.data.layout import WorldIndex
 from ushape.fusion.rules import FusedCode
 from ushape.reconstruction.predictor import Predictor
-from ushape.reconstruction.refine_calibration import at_views
 from ushape.reconstruction.settings import ReconstructionSettings
 from ushape.refinement import ObservedView, refine, refine_settings
 from ushape.refinement.inputs import (
@@ -29,14 +28,7 @@ from ushape.workspace import CONFIG_FILE
 
 log = logging.getLogger(__name__)
 # What summary.json's refinement record keeps of the calibration it applied (reconstruct.py --fit-refinement).
-# The SDF factor and floors are those fitted for the refinement's number of views (`at_views`), where stored.
-APPLIED = ("information_scale", "sdf_temperature", "sdf_floor", "seen", "at_views", "size", "n_shapes")
-
-
-def applied(calibration: dict[str, Any] | None, n_views: int) -> dict[str, Any] | None:
-    """What summary.json keeps of the calibration a refinement on n_views views applied (None: none)."""
-    fit = at_views(calibration, max(n_views, 1))
-    return None if fit is None else {k: fit.get(k) for k in APPLIED}
+APPLIED = ("information_scale", "sdf_temperature", "sdf_floor", "seen", "size", "n_shapes")
 
 
 def refined(
@@ -84,7 +76,7 @@ def refined(
     posterior = refine(decoder, fused.mu, fused.var, views, options)
     record = {"mode": settings.refine, "starts": settings.refine_starts, **posterior.record()}
     record["views_with_camera"] = sum(v is not None for v in views)
-    record["calibration"] = applied(calibration, record["views_with_camera"])
+    record["calibration"] = None if calibration is None else {k: calibration.get(k) for k in APPLIED}
     record["mu"] = posterior.mu.tolist()
     views = [v for v in views if v is not None]
     if posterior.fallback is not None:  # the prior exactly, in its own (diagonal) form
@@ -122,7 +114,7 @@ def pose_refined(
     record["pose"]["elevation_deg"] = pose_settings.elevation
     record["pose"]["tilt_prior_deg"] = pose_settings.tilt_prior_deg
     record["views_with_camera"] = sum(v is not None for v in views)
-    record["calibration"] = applied(calibration, len(unposed))
+    record["calibration"] = None if calibration is None else {k: calibration.get(k) for k in APPLIED}
     record["mu"] = posterior.mu.tolist()
     posed = [replace(v, world_to_cam=c) for v, c in zip(unposed, posterior.cameras)]
     return FusedCode(posterior.mu, posterior.cov, fused.kept), record, posed

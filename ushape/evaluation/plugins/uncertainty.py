@@ -42,7 +42,7 @@ class Uncertainty(Protocol):
         run, settings = context.run, context.settings
         encodings, codes = context.views(1.0), context.split_codes()
         rows, latent_curves = latent_rows(run.spec, encodings, codes, settings.calibration_levels)
-        sdf_temperature, sdf_floor = sdf_variance_calibration(run, n_views=1)  # single views
+        sdf_temperature, sdf_floor = sdf_variance_calibration(run)
         sdf, sdf_curves = sdf_rows(
             run.spec,
             context.views(1.0, self.sdf_views),
