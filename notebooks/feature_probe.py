@@ -42,14 +42,7 @@ LAMBDAS = (1e2, 1e3, 1e4, 1e5)
 @torch.no_grad()
 def two_poolings(encoder, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """images [B, 3, S, S] in [0, 1] -> (stage means [B, F], stage 2x2-grid means [B, 4F])."""
-    net = encoder.backbone
-    x = F.relu6(net._bn0(net._conv_stem((images - encoder.pixel_mean) / encoder.pixel_std)))
-    maps = []
-    for i, block in enumerate(net._blocks):
-        x = block(x)
-        if i in net._stage_ends:
-            maps.append(x)
-    maps.append(F.relu6(net._bn1(net._conv_head(x))))
+    maps = encoder.backbone.stage_maps((images - encoder.pixel_mean) / encoder.pixel_std)
     means = torch.cat([m.mean(dim=(-2, -1)) for m in maps], dim=1)
     grids = torch.cat([F.adaptive_avg_pool2d(m, 2).flatten(1) for m in maps], dim=1)
     return means, grids

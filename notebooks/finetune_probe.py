@@ -71,14 +71,8 @@ class Standardise(nn.Module):
 @torch.no_grad()
 def lower(encoder, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """images [B, 3, S, S] in [0, 1] -> (stage 1-5 means [B, 272], stage-5 maps [B, 112, S/16, S/16])."""
-    net = encoder.backbone
-    x = F.relu6(net._bn0(net._conv_stem((images - encoder.pixel_mean) / encoder.pixel_std)))
-    pooled = []
-    for i, block in enumerate(net._blocks[: SPLIT_BLOCK + 1]):
-        x = block(x)
-        if i in net._stage_ends:
-            pooled.append(x.mean(dim=(-2, -1)))
-    return torch.cat(pooled, dim=1), x
+    maps = encoder.backbone.stage_maps((images - encoder.pixel_mean) / encoder.pixel_std, SPLIT_BLOCK + 1)
+    return torch.cat([m.mean(dim=(-2, -1)) for m in maps], dim=1), maps[-1]  # SPLIT_BLOCK ends stage 5
 
 
 def train(upper, head, data, codes, epochs: int, finetune: bool, seed: int = 0) -> None:

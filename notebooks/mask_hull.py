@@ -22,6 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from pretrained_measure import spread  # noqa: E402
 from r2n2_ceiling import shape_frame  # noqa: E402
 
+from ushape.data.cameras import project  # noqa: E402
 from ushape.data.layout import WorldIndex  # noqa: E402
 from ushape.data.real.r2n2_voxels import read_r2n2_voxels  # noqa: E402
 from ushape.metrics.reconstruction import iou_from_occupancy  # noqa: E402
@@ -34,15 +35,13 @@ OFFSETS = np.array([(a, b, c) for a in (-0.4, 0, 0.4) for b in (-0.4, 0, 0.4) fo
 def inside_masks(points: np.ndarray, views: list[ObservedView]) -> np.ndarray:
     """Bool [P]: points [P, 3] (world frame) that project inside the mask (> 0.5) of every view."""
     keep = np.ones(len(points), dtype=bool)
-    homogeneous = np.concatenate([points, np.ones((len(points), 1))], axis=1)
     for view in views:
-        cam = (homogeneous @ np.asarray(view.world_to_cam, dtype=np.float64).T)[:, :3]
-        pix = cam @ np.asarray(view.K, dtype=np.float64).T
-        z = pix[:, 2]
-        u, v = pix[:, 0] / np.where(z > 0, z, 1), pix[:, 1] / np.where(z > 0, z, 1)
+        uv, z = project(points, np.asarray(view.K, dtype=np.float64), np.asarray(view.world_to_cam, np.float64))
         h, w = view.image_hw
-        col, row = np.floor(u).astype(int), np.floor(v).astype(int)
-        on = (z > 0) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
+        front = z > 0  # points behind the camera (or at its depth 0) are outside its mask
+        col, row = np.full(len(points), -1), np.full(len(points), -1)
+        col[front], row[front] = np.floor(uv[front, 0]).astype(int), np.floor(uv[front, 1]).astype(int)
+        on = (col >= 0) & (col < w) & (row >= 0) & (row < h)
         mask = view.mask.numpy() > 0.5
         hit = np.zeros(len(points), dtype=bool)
         hit[on] = mask[row[on], col[on]]

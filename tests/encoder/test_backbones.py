@@ -91,3 +91,17 @@ def test_lite0_stage_pooling_ends_with_the_head_features():
         out = stages(x)
         assert out.shape == (2, dim) and dim == 784 + head_dim
         assert torch.allclose(out[:, -head_dim:], head(x), atol=1e-6)
+
+
+def test_stage_maps_are_what_the_stages_pooling_averages():
+    """Every stage's map and the head's, 7 + 1; stopped after a stage's last block, the same maps up to there."""
+    torch.manual_seed(0)
+    net = EfficientNetLite0("stages").eval()
+    x = torch.randn(2, 3, 64, 64)
+    with torch.no_grad():
+        maps = net.stage_maps(x)
+        first_five = net.stage_maps(x, blocks=11)  # blocks 0-10: stages 1-5
+        pooled = net(x)
+    assert [m.shape[1] for m in maps] == [16, 24, 40, 80, 112, 192, 320, 1280]
+    assert len(first_five) == 5 and all(torch.equal(a, b) for a, b in zip(first_five, maps))
+    torch.testing.assert_close(pooled, torch.cat([m.mean(dim=(-2, -1)) for m in maps], dim=1))

@@ -104,15 +104,23 @@ class EfficientNetLite0(nn.Module):
         self._conv_head = SameConv2d(LITE0_BLOCKS[-1][-1], FEATURE_DIM, 1)
         self._bn1 = _bn(FEATURE_DIM)
 
-    def forward(self, x: Tensor) -> Tensor:
+    def stage_maps(self, x: Tensor, blocks: int | None = None) -> list[Tensor]:
+        """Images [B, 3, H, W] (normalised) -> the map [B, C, h, w] at the end of every stage the first `blocks`
+        blocks reach (None: all of them, and then the head conv's map last)."""
         x = F.relu6(self._bn0(self._conv_stem(x)))
-        pooled = []
-        for i, block in enumerate(self._blocks):
+        maps = []
+        for i, block in enumerate(self._blocks[:blocks]):
             x = block(x)
-            if self.pooling == "stages" and i in self._stage_ends:
-                pooled.append(x.mean(dim=(-2, -1)))
-        x = F.relu6(self._bn1(self._conv_head(x)))
-        return torch.cat([*pooled, x.mean(dim=(-2, -1))], dim=1)
+            if i in self._stage_ends:
+                maps.append(x)
+        if blocks is None:
+            maps.append(F.relu6(self._bn1(self._conv_head(x))))
+        return maps
+
+    def forward(self, x: Tensor) -> Tensor:
+        maps = self.stage_maps(x)
+        pooled = maps if self.pooling == "stages" else maps[-1:]
+        return torch.cat([m.mean(dim=(-2, -1)) for m in pooled], dim=1)
 
 
 def lite0_weights_file() -> Path:
