@@ -67,6 +67,9 @@ def pose_row(decoder, fused, views, settings, pose_settings, azimuth_logp=None) 
         "rotation_std_deg": rec["rotation_std_deg"],
         "translation_error": float(np.linalg.norm(est.R.T @ (truth.t - est.t) / est.scale)),
         "translation_std": rec["translation_std"],
+        # the object's origin in the first camera: along its axis (signed, + farther) and across it
+        "depth_error": float(est.t[2] / est.scale - truth.t[2]),
+        "lateral_error": float(np.linalg.norm(est.t[:2] / est.scale - truth.t[:2])),
         "ambiguous": rec["ambiguous"],
         "runner_up_error_deg": rotation_angle_deg(np.array(runner["R"]), truth.R) if runner else None,
         "runner_up_gap": runner["energy_gap"] if runner else None,

@@ -33,7 +33,7 @@ from torch import Tensor
 
 from ushape.encoder.viewpoint import camera_azimuth_elevation
 from ushape.refinement.observation import ObservationSettings, Residuals, code_functions, code_grid, residuals
-from ushape.refinement.pose import Pose, point_jacobian, scale_observable
+from ushape.refinement.pose import TRANSLATION, Pose, point_jacobian, scale_observable
 from ushape.refinement.posterior import (
     Posterior,
     prior_precision,
@@ -80,6 +80,10 @@ class PoseSettings:
     # s of the pose's rows in the Laplace covariance (None: the code's information scale), fitted on val shapes so
     # the rotation's squared error matches its variance (`reconstruct.py --fit-pose`)
     pose_information_scale: float | None = None
+    # Hold each group's distance along its reference camera's axis while the code is fixed (the screening and the
+    # joint run's first stages), freeing it with the code: at the fused code the wide silhouettes move the object
+    # away from the camera (docs/pose.md, "Where the IoU goes")
+    hold_depth: bool = False
 
     def precision(self, dofs: int, with_head: bool = False) -> Tensor:  # [dofs, dofs] float64
         rotation = self.rotation_prior_with_head_deg if with_head else self.rotation_prior_deg
@@ -366,7 +370,10 @@ def levenberg_marquardt(problem: Problem, state: State, iterations: int, code_fr
         if not (torch.isfinite(res.r).all() and torch.isfinite(J).all()):
             return state, res, w, None, e, steps
         H_prior, g_prior = problem.prior_terms(state)
-        H = (H_prior + J.T @ (w[:, None] * J))[free][:, free]
+        H = H_prior + J.T @ (w[:, None] * J)
+        if not code_free and problem.pose_settings.hold_depth:
+            H = H + depth_hold(problem, state, H)
+        H = H[free][:, free]
         g = (g_prior + J.T @ (w * res.r.double()))[free]
         improved = False
         for _ in range(6):
@@ -388,6 +395,19 @@ def levenberg_marquardt(problem: Problem, state: State, iterations: int, code_fr
         if done:
             break
     return state, res, w, J, e, steps
+
+
+def depth_hold(problem: Problem, state: State, H: Tensor) -> Tensor:  # [width, width] float64
+    """A stiffness on each group's translation along its reference camera's axis: kappa n n^T with n = R^T e_z,
+    the camera's axis in the object's axes (a step v moves the object by scale R v), kappa far above H's diagonal,
+    so a damped Gauss-Newton step leaves the object's distance where it is."""
+    out = torch.zeros_like(H)
+    kappa = 1e6 * (1.0 + float(H.diagonal().abs().max()))
+    for g, pose in enumerate(state.poses):
+        n = torch.as_tensor(pose.R[2], dtype=torch.float64)  # R^T e_z
+        c = problem.columns[g] + TRANSLATION.start
+        out[c : c + 3, c : c + 3] = kappa * torch.outer(n, n)
+    return out
 
 
 def appearance_energy(poses: Sequence[Pose], groups: PoseGroups, azimuth_logp: Sequence[Tensor | None] | None) -> float:
