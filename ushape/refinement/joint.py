@@ -82,7 +82,8 @@ class PoseSettings:
     pose_information_scale: float | None = None
     # Hold each group's distance along its reference camera's axis while the code is fixed (the screening and the
     # joint run's first stages), freeing it with the code: at the fused code the wide silhouettes move the object
-    # away from the camera (docs/pose.md, "Where the IoU goes")
+    # away from the camera. Off: holding it removes that bias and changes which rotation wins, for no IoU gain
+    # measured (docs/pose.md, "From one view, what the IoU lacks is the object's distance")
     hold_depth: bool = False
 
     def precision(self, dofs: int, with_head: bool = False) -> Tensor:  # [dofs, dofs] float64
