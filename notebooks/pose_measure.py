@@ -8,6 +8,7 @@ views (our renders, spread around the orbit): the fused code refined on the mask
 (reconstruct.py's --refine masks) and with the cameras hidden (`refine_pose_and_shape`: K kept, the object's
 pose in the first camera estimated; for n > 1 the views' motion from the first is given, as odometry would;
 the hypotheses from the model's viewpoint head where it has one, unless --no-viewpoint).
+--mode depth: both read the views' depth maps too (an RGB-D camera), the object's scale then estimated with its pose.
 Kept: the rotation error of the estimate and of its runner-up, the pose's std, the Mahalanobis distance of the
 rotation error, the seconds of each and the IoU of each against R2N2's voxels (+0.4 voxel). Resumable.
 """
@@ -70,6 +71,7 @@ def pose_row(decoder, fused, views, settings, pose_settings, azimuth_logp=None) 
         # the object's origin in the first camera: along its axis (signed, + farther) and across it
         "depth_error": float(est.t[2] / est.scale - truth.t[2]),
         "lateral_error": float(np.linalg.norm(est.t[:2] / est.scale - truth.t[:2])),
+        "scale": est.scale,  # the truth's is 1: the world's depth is in object units
         "ambiguous": rec["ambiguous"],
         "runner_up_error_deg": rotation_angle_deg(np.array(runner["R"]), truth.R) if runner else None,
         "runner_up_gap": runner["energy_gap"] if runner else None,
@@ -101,14 +103,14 @@ def shape_rows(args, predictor, fusion, world, shape_id, done) -> list[dict]:
     voxels, _ = read_r2n2_voxels(source)
     frame = (centre, scale, side)
     fit = args.fit
-    settings = refine_settings("masks", args.size, information_scale=fit["information_scale"] if fit else 1.0)
+    settings = refine_settings(args.mode, args.size, information_scale=fit["information_scale"] if fit else 1.0)
     rows = []
     for n in args.views:
         if (shape_id, n) in done:
             continue
         chosen = spread(n, len(files))
         fused = fusion(mu[chosen], var[chosen])
-        views = world_views(world.views_path(shape_id), chosen, with_depth=False)
+        views = world_views(world.views_path(shape_id), chosen, with_depth=args.mode == "depth")
         start = time.perf_counter()
         known = refine(decoder, fused.mu, fused.var, views, settings)
         known_seconds = time.perf_counter() - start
@@ -192,6 +194,12 @@ def main() -> None:
     parser.add_argument("--shapes", type=int, default=30)
     parser.add_argument("--views", type=int, nargs="+", default=[1, 3])
     parser.add_argument("--size", type=int, default=32, help="rays per image side (reconstruct.py's --refine-size)")
+    parser.add_argument(
+        "--mode",
+        default="masks",
+        choices=("masks", "depth"),
+        help="what both refinements read: the masks, or the masks and the views' depth maps (an RGB-D camera)",
+    )
     parser.add_argument("--summary", type=Path, default=None)
     parser.add_argument(
         "--no-viewpoint",
@@ -226,7 +234,7 @@ def main() -> None:
     if args.world is None and predictor.world is None:
         parser.error("this model names no world (a shipped model): pass --world, the r2n2 world it was measured on")
     world = WorldIndex.load(args.world or predictor.world)
-    args.fit = read_refinement_calibration(predictor.checkpoint, "masks")
+    args.fit = read_refinement_calibration(predictor.checkpoint, args.mode)
     args.pose_settings = pose_settings_for(predictor.checkpoint)  # its fitted pose information scale, if any
     if args.grid_reuse is not None:
         args.pose_settings = replace(args.pose_settings, grid_reuse=args.grid_reuse)

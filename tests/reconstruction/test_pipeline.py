@@ -280,9 +280,48 @@ def test_refine_masks_without_cameras_estimates_the_pose_and_relative_poses_shar
     with pytest.raises(ValueError, match="drop --pose given"):
         reconstruct(sphere_predictor, photos, BayesianKFusion(k=2), tmp_path / "o5",
                     dataclasses.replace(shared, pose="given"))  # fmt: skip
-    with pytest.raises(ValueError, match="need --refine masks"):
+    with pytest.raises(ValueError, match="need --refine masks or --refine depth"):
         reconstruct(sphere_predictor, photos, BayesianKFusion(k=2), tmp_path / "o4",
                     dataclasses.replace(SMALL, pose="estimate"))  # fmt: skip
+
+
+def test_rgbd_frames_without_a_pose_give_the_object_its_size_in_the_depths_units(tiny_run, sphere_predictor, tmp_path):
+    """An RGB-D camera's frame: K, mask and depth in a camera file with no world_to_cam (where the cameras stood
+    is unknown), --refine depth --pose estimate. The depth makes the scale part of the pose, and the problem is
+    the same in any units: depth in units twice as small gives the object twice the scale."""
+    from ushape.propagation.sphere_tracing import camera_rays, sphere_trace
+    from ushape.refinement.inputs import image_size, input_views
+
+    renders = sorted((tiny_run["world"] / "renders" / "test_0").glob("*.png"))[:1]
+    photo = tmp_path / "frame.png"
+    photo.write_bytes(renders[0].read_bytes())
+    with np.load(tiny_run["world"] / "renders" / "test_0" / "views.npz") as data:
+        K, w2c = data["K"][:1], data["world_to_cam"][0]
+    h, w = image_size(photo)  # the decoder's own sphere seen through the render's camera: its depth and mask
+    o, d = camera_rays(K[0], w2c, (h, w), 1, 1e-3)
+    decoder = sphere_predictor.decoder
+    with torch.no_grad():
+        t, hit = sphere_trace(lambda x, _: decoder(x, torch.zeros(x.shape[0], 8)), o, d, 1, 100, 1e-4)
+    depth = torch.where(hit[0], t[0], torch.zeros_like(t[0])).reshape(1, h, w).numpy()
+    masks = (depth > 0).astype(np.float32)
+    settings = dataclasses.replace(SMALL, refine="depth", refine_size=12, pose="estimate")
+    scales = []
+    for units in (1.0, 2.0):
+        cams = tmp_path / f"rgbd{units}.npz"
+        np.savez(cams, K=K, masks=masks, depth=depth * units)
+        with pytest.raises(ValueError, match="--pose estimate"):
+            input_views([photo], cams)
+        views = input_views([photo], cams, pose_unknown=True)
+        summary = reconstruct(sphere_predictor, [photo], BayesianKFusion(k=2), tmp_path / f"o{units}", settings, views)
+        record = summary["refinement"]
+        assert record["fallback"] is None and record["views"][0]["used"] == "depth"
+        (group,) = record["pose"]["groups"]
+        assert group["scale_std"] is not None  # the depth tells the size, from one view
+        scales.append(group["scale"])
+        camera = np.array(record["pose"]["cameras"][0])  # object units: the sphere's distance, whatever the units
+        assert np.linalg.norm(camera[:3, 3]) == pytest.approx(np.linalg.norm(w2c[:3, 3]), rel=0.03)
+    assert scales[0] == pytest.approx(1.0, rel=0.03)  # the depth was drawn at the decoder's own size
+    assert scales[1] == pytest.approx(2.0 * scales[0], rel=1e-3)
 
 
 def test_cli_camera_file_needs_refine(tiny_run, tmp_path, capsys):

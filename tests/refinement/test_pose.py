@@ -13,7 +13,7 @@ import torch
 from torch import nn
 
 from ushape.data.cameras import look_at
-from ushape.propagation.sphere_tracing import camera_rays
+from ushape.propagation.sphere_tracing import camera_rays, sphere_trace
 from ushape.refinement.joint import GridCache, PoseGroups, PoseSettings, Problem, State, grid_probes
 from ushape.refinement.pose import Pose, exp_so3, log_so3, point_jacobian, rotation_angle_deg, scale_observable
 from ushape.refinement.pose_search import refine_from_poses, refine_pose_and_shape
@@ -62,6 +62,14 @@ def silhouette(decoder, z, K, w2c, hw) -> torch.Tensor:
     return (m < 0).float().reshape(hw)
 
 
+def depth_map(decoder, z, K, w2c, hw) -> torch.Tensor:
+    """The decoder's camera-frame depth through a camera (sphere traced; 0 = no return)."""
+    o, d = camera_rays(K, w2c, hw, 1, 1e-3)
+    with torch.no_grad():
+        t, hit = sphere_trace(lambda p, _: decoder(p, z.expand(p.shape[0], -1)), o, d, 1, 200, 1e-4)
+    return torch.where(hit[0], t[0], torch.zeros_like(t[0])).reshape(hw)
+
+
 def view_of(decoder, z, azimuth, elevation, distance, px) -> ObservedView:
     K, w2c = look_at(azimuth, elevation, distance, FOV, (px, px))
     return ObservedView(K=K, world_to_cam=w2c, mask=silhouette(decoder, z, K, w2c, (px, px)))
@@ -86,25 +94,36 @@ def test_pose_algebra_round_trips():
         point_jacobian(torch.zeros(2, 3), torch.zeros(2, 3), dofs=5)
 
 
-def test_joint_jacobian_matches_finite_differences():
-    """dr/d(z, omega, v, sigma) of two views sharing a pose, on a smooth SDF (an off-centre ball)."""
+@pytest.mark.parametrize("mode", ["masks", "depth"])
+def test_joint_jacobian_matches_finite_differences(mode):
+    """dr/d(z, omega, v, sigma) on a smooth SDF (an off-centre ball): two views sharing a pose (masks: the baseline
+    makes the scale observable), or one view with a depth map in units 1.5 times the object's (depth: its surface
+    and free-space rows, the returns divided by the scale)."""
     decoder, px = Ball((0.3, 0.1, -0.2)), 64
     K, w2c = look_at(40.0, 25.0, 2.2, FOV, (px, px))
     mask = torch.zeros(px, px)
     mask[20:40, 25:45] = 1
     view = ObservedView(K=K, world_to_cam=w2c, mask=mask)
-    settings = refine_settings("masks", size=32)
+    settings = refine_settings(mode, size=32)
     obs = dataclasses.replace(settings.observation, tau=0.08, grid=0, coarse=512, fine=64)
     settings = dataclasses.replace(settings, observation=obs)
     second = look_at(100.0, 25.0, 2.2, FOV, (px, px))[1] @ np.linalg.inv(w2c)
     groups = PoseGroups.shared([np.eye(4), second])
-    truth = Pose.from_world_to_cam(w2c)
-    problem = Problem(decoder, torch.zeros(1), torch.ones(1), [view, view], groups, settings, PoseSettings(), [truth])
+    if mode == "depth":  # a slightly larger ball's returns: surface rows off zero, and free-space rows inside it
+        depth = depth_map(Ball((0.3, 0.1, -0.2)), torch.tensor([0.1]), K, w2c, (px, px)) * 1.5
+        view = dataclasses.replace(view, depth=depth)
+        w2c = w2c.copy()
+        w2c[:3, 3] *= 1.5  # the reference camera's units
+    truth = Pose(w2c[:3, :3], w2c[:3, 3], 1.5 if mode == "depth" else 1.0)
+    views, groups = ([view, view], groups) if mode == "masks" else ([view], PoseGroups.separate(1))
+    problem = Problem(decoder, torch.zeros(1), torch.ones(1), views, groups, settings, PoseSettings(), [truth])
     state = State(torch.zeros(1, dtype=torch.float64), [truth.perturbed(np.array([0.05, -0.03, 0.02, 0.02, 0.01,
                                                                                    -0.03, 0.02]))])  # fmt: skip
     res, _ = problem.residuals(state)
+    if mode == "depth":
+        assert {1, 2} <= set(res.kind.tolist())  # depth-return and free-space rows beside the silhouette's
     J = problem.jacobian(state, res)
-    assert J.shape == (res.r.shape[0], 8)  # 1 code dimension, 7 pose: a baseline makes the scale observable
+    assert J.shape == (res.r.shape[0], 8)  # 1 code dimension, 7 pose: the scale is observable either way
     for k in range(8):
         delta = torch.zeros(8, dtype=torch.float64)
         delta[k] = 1e-4
@@ -220,9 +239,36 @@ def test_pose_estimation_says_what_it_needs():
     view = ObservedView(K=look_at(0.0, 20.0, 2.0, FOV, 32)[0], world_to_cam=np.eye(4), mask=torch.zeros(32, 32))
     with pytest.raises(ValueError, match="empty mask"):
         refine_pose_and_shape(Ball(), torch.zeros(1), torch.ones(1), [view], PoseGroups.separate(1))
-    with pytest.raises(ValueError, match="masks alone"):
-        refine_pose_and_shape(Ball(), torch.zeros(1), torch.ones(1), [view], PoseGroups.separate(1),
-                              refine_settings("depth"))  # fmt: skip
+    view = view_of(Ball(), torch.zeros(1), 0.0, 20.0, 2.0, 32)
+    traced = refine_settings("depth")
+    traced = dataclasses.replace(traced, observation=dataclasses.replace(traced.observation, depth_residual="trace"))
+    with pytest.raises(ValueError, match="'surface' depth residual only"):
+        refine_pose_and_shape(Ball(), torch.zeros(1), torch.ones(1), [view], PoseGroups.separate(1), traced)
+
+
+def test_a_depth_map_gives_the_object_its_distance_and_size_from_one_view():
+    """One RGB-D view of the asymmetric shape, its camera hidden, the depth in units 1.6 times the object's (metres,
+    say): the masks alone cannot tell a larger, farther object from a smaller, nearer one, the depth map can. The
+    pose comes back with the object's distance and scale in the depth's units, and the posed views carry the
+    depth back in object units."""
+    decoder, px, metres = BoxAndBall(), 96, 1.6
+    view = view_of(decoder, torch.zeros(3), 60.0, 28.0, 2.3, px)
+    depth = depth_map(decoder, torch.zeros(3), view.K, view.world_to_cam, (px, px)) * metres
+    view = dataclasses.replace(view, depth=depth)
+    truth = Pose.from_world_to_cam(view.world_to_cam, scale=metres)
+    post = refine_pose_and_shape(decoder, torch.zeros(3), torch.full((3,), 1e-4), [view], PoseGroups.separate(1),
+                                 refine_settings("depth", size=48))  # fmt: skip
+    pose, record = post.poses[0], post.pose_record(0)
+    assert rotation_angle_deg(pose.R, truth.R) < 10.0
+    assert pose.scale == pytest.approx(metres, rel=0.03) and record["scale_std"] is not None
+    assert np.linalg.norm(pose.t - truth.t) < 0.05 * metres  # the object's origin, 3.7 units away
+    assert post.record()["views"][0]["used"] == "depth"
+    posed = post.posed_views([view])[0]
+    torch.testing.assert_close(posed.depth, depth / pose.scale)  # the same division, no tolerance needed
+    masks_only = refine_pose_and_shape(decoder, torch.zeros(3), torch.full((3,), 1e-4), [view],
+                                       PoseGroups.separate(1), refine_settings("masks", size=48))  # fmt: skip
+    assert masks_only.poses[0].scale == 1.0  # from masks alone the size stays the code's: distance in its units
+    assert np.linalg.norm(masks_only.poses[0].t) < 0.8 * np.linalg.norm(truth.t)
 
 
 def test_what_the_image_says_of_its_azimuth_breaks_the_half_turn_tie(box_views):

@@ -153,7 +153,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--refine",
         default=None,
         choices=REFINE_MODES,
-        help="refine the fused code on what the views show (masks, or masks + depth); needs their cameras",
+        help="refine the fused code on what the views show (masks, or masks + depth) through their cameras, or "
+        "with the object's pose estimated (--pose)",
     )
     parser.add_argument(
         "--cameras",
@@ -182,8 +183,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--pose",
         default=DEFAULTS.pose,
         choices=POSE_CHOICES,
-        help="with --refine masks: estimate the object's pose with its shape (auto: where no image has a camera; "
-        "estimate: always, a known camera's K kept; given: never), docs/pose.md",
+        help="estimate the object's pose with its shape (auto: with --refine masks where no image has a camera; "
+        "estimate: always, a known camera's K kept, a camera file's world_to_cam optional; given: never); with "
+        "--refine depth the depth maps give the object's distance and size in their units, docs/pose.md",
     )
     parser.add_argument(
         "--fov",
@@ -315,7 +317,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise ValueError("--cameras is read by the refinement: add --refine masks|depth")
         files = collect_inputs(args.inputs)
         given = args.cameras or args.masks
-        observations = input_views(files, args.cameras, args.masks) if args.refine and given else None
+        unknown = args.pose == "estimate"  # a camera file may then hold K (and depth) with no world_to_cam
+        observations = None
+        if args.refine and given:
+            observations = input_views(files, args.cameras, args.masks, pose_unknown=unknown)
         fusion = build_fusion(args.fusion, args.k) if args.fusion else None
         predictor = predictor_of(args, temperature=args.temperature)
         fusion = default_fusion(predictor, args.k) if fusion is None else calibrate_fusion(fusion, predictor)

@@ -85,11 +85,14 @@ def refined(
 
 
 def estimates_pose(settings: ReconstructionSettings, views: Sequence[ObservedView | None]) -> bool:
-    """Whether the object's pose is estimated: asked (--pose estimate, or --relative-poses given), or by default
-    (auto) where the refinement is on masks and no view has a camera."""
-    if settings.pose == "given" or settings.refine != "masks":
+    """Whether the object's pose is estimated: asked (--pose estimate, or --relative-poses given), on masks or on
+    masks and depth (a camera file's `depth`, in any units: it gives the object's distance and size), or by
+    default (auto) where the refinement is on masks and no view has a camera (an image alone has no depth map)."""
+    if settings.pose == "given" or settings.refine not in ("masks", "depth"):
         return False
-    return settings.pose == "estimate" or bool(settings.relative_poses) or all(v is None for v in views)
+    if settings.pose == "estimate" or settings.relative_poses:
+        return True
+    return settings.refine == "masks" and all(v is None for v in views)
 
 
 def pose_refined(
@@ -116,8 +119,7 @@ def pose_refined(
     record["views_with_camera"] = sum(v is not None for v in views)
     record["calibration"] = None if calibration is None else {k: calibration.get(k) for k in APPLIED}
     record["mu"] = posterior.mu.tolist()
-    posed = [replace(v, world_to_cam=c) for v, c in zip(unposed, posterior.cameras)]
-    return FusedCode(posterior.mu, posterior.cov, fused.kept), record, posed
+    return FusedCode(posterior.mu, posterior.cov, fused.kept), record, posterior.posed_views(unposed)
 
 
 def capture_settings(pose_settings: PoseSettings, settings: ReconstructionSettings) -> PoseSettings:

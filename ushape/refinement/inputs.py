@@ -3,7 +3,8 @@
 Cameras, in this order of precedence:
   - a camera file the user passes: an .npz laid out like the world's views.npz, one entry per input
     image in input order: K [V, 3, 3] (for each image's own pixel size), world_to_cam [V, 4, 4], and
-    optionally masks [V, H, W] and depth [V, H, W] (camera-frame z, 0 = no return);
+    optionally masks [V, H, W] and depth [V, H, W] (camera-frame z, 0 = no return); where the object's pose
+    is estimated (--pose estimate), world_to_cam may be left out (an RGB-D frame: K and depth, in any units);
   - a render of our world (renders/<id>/NN.png with views.npz beside it): its own camera, mask and depth;
   - an R2N2 render (rendering/NN.png with rendering_metadata.txt beside it): the camera of its metadata row,
     with the object placed in R2N2's frame as the model's training shapes typically are (`typical_r2n2_frame`).
@@ -45,8 +46,10 @@ def image_size(path: str | Path) -> tuple[int, int]:
     return tuple(read_image(path).shape[:2])
 
 
-def load_camera_file(cameras: str | Path) -> dict[str, np.ndarray]:
-    """The arrays of a views.npz-like camera file; an InputError naming the file when it is not one."""
+def load_camera_file(cameras: str | Path, pose_unknown: bool = False) -> dict[str, np.ndarray]:
+    """The arrays of a views.npz-like camera file; an InputError naming the file when it is not one. With
+    pose_unknown (the object's pose is estimated), world_to_cam may be left out: an RGB-D frame's K and depth,
+    say; each view then carries a placeholder camera the estimate replaces."""
     path = Path(cameras)
     if not path.is_file():
         raise MissingInputError(f"camera file {path} does not exist")
@@ -58,6 +61,13 @@ def load_camera_file(cameras: str | Path) -> dict[str, np.ndarray]:
             f"camera file {path} is not a readable .npz archive ({type(err).__name__}): save it with "
             "numpy.savez(path, K=..., world_to_cam=...)"
         ) from err
+    if "K" in arrays and "world_to_cam" not in arrays and pose_unknown:
+        arrays["world_to_cam"] = np.repeat(PLACEHOLDER_CAMERA[None], len(arrays["K"]), axis=0)
+    if "K" in arrays and "world_to_cam" not in arrays:
+        raise InputError(
+            f"camera file {path} has K but no world_to_cam [V, 4, 4]: where the cameras stood is unknown, so pass "
+            "--pose estimate to estimate the object's pose with its shape, or add world_to_cam"
+        )
     if "K" not in arrays or "world_to_cam" not in arrays:
         raise InputError(f"camera file {path} needs arrays K [V, 3, 3] and world_to_cam [V, 4, 4]")
     for key, shape in (("K", (3, 3)), ("world_to_cam", (4, 4))):
@@ -68,10 +78,11 @@ def load_camera_file(cameras: str | Path) -> dict[str, np.ndarray]:
 
 
 def camera_file_views(
-    cameras: str | Path, images: Sequence[Path], masks: Sequence[Path] | None
+    cameras: str | Path, images: Sequence[Path], masks: Sequence[Path] | None, pose_unknown: bool = False
 ) -> list[ObservedView | None]:
-    """One ObservedView per image from a views.npz-like camera file (see the module docstring)."""
-    data = load_camera_file(cameras)
+    """One ObservedView per image from a views.npz-like camera file (see the module docstring; pose_unknown:
+    `load_camera_file`'s)."""
+    data = load_camera_file(cameras, pose_unknown)
     if len(data["K"]) != len(images):
         raise InputError(f"camera file {cameras} has {len(data['K'])} cameras for {len(images)} input images")
     views = []
@@ -170,15 +181,17 @@ def input_views(
     cameras: str | Path | None = None,
     masks: Sequence[Path] | None = None,
     r2n2_frame: R2N2Frame | None = None,
+    pose_unknown: bool = False,
 ) -> list[ObservedView | None]:
     """Per input image its ObservedView, or None where no camera is known (a photo without a camera file).
 
     r2n2_frame: where R2N2's frame sits in the model's (`typical_r2n2_frame`), for R2N2 renders.
+    pose_unknown: the object's pose is estimated, so a camera file may hold K (and depth, masks) alone.
     """
     if masks is not None and len(masks) != len(images):
         raise InputError(f"{len(masks)} mask files for {len(images)} images: pass one mask per image, in order")
     if cameras is not None:
-        return camera_file_views(cameras, images, masks)
+        return camera_file_views(cameras, images, masks, pose_unknown)
     views = []
     for i, image in enumerate(images):
         folder, numbered, mask = Path(image).parent, Path(image).stem.isdigit(), None if masks is None else masks[i]

@@ -11,7 +11,15 @@ The state is theta = (z, xi_1 .. xi_G): the code and each group's pose perturbat
 with the same silhouette residuals and weights as the known-camera refinement (`posterior`), and a prior
 on each pose about its starting hypothesis: e_g = (rotation vector, translation in object units, log
 scale) from the hypothesis to T_g, precision P_g (`PoseSettings`). The scale is in the state only where
-a group's baseline makes it observable; from one view a larger, farther object looks the same.
+it is observable: a group with a baseline, or one whose views carry depth maps (refinement mode "depth"); from
+one view's masks a larger, farther object looks the same.
+
+Depth (an RGB-D camera, DSP-SLAM's setting): a view's depth map is in its camera's units (metres, say), the
+object's frame in the decoder's. Each depth return is divided by the group's scale before it is back-projected,
+so a return is the camera-fixed point x = s R x_obj + t like a silhouette's ray minimum, and its rows' pose
+columns follow from ds/dx at it alike (`pose.point_jacobian`, the log-scale column included). Only the
+"surface" depth residual is supported here: the traced depth's residual would also need the return's own
+derivative in the scale.
 
 Where the search starts and which start wins: `pose_search` (refine_pose_and_shape, the entry point).
 
@@ -130,6 +138,22 @@ class PoseGroups:
         return 7 if scale_observable([self.cams_from_ref[i] for i in self.members(g)]) else 6
 
 
+def group_dofs(groups: PoseGroups, views: Sequence[ObservedView], use_depth: bool) -> list[int]:
+    """Each group's pose degrees of freedom: 7 (with the log scale) where a baseline or, with use_depth, a view's
+    depth map makes the object's size observable; else 6."""
+    return [
+        7 if use_depth and any(views[i].depth is not None for i in groups.members(g)) else groups.dofs(g)
+        for g in range(groups.count)
+    ]
+
+
+def in_object_units(view: ObservedView, world_to_cam: np.ndarray, scale: float) -> ObservedView:
+    """The view through an object-unit camera (`Pose.object_camera`), its depth map (camera units) divided by the
+    scale the object is seen at, so its returns land where the camera saw them."""
+    depth = None if view.depth is None else view.depth / scale
+    return replace(view, world_to_cam=world_to_cam, depth=depth)
+
+
 @dataclass
 class PosedPosterior(Posterior):
     """The refined code (its marginal: mu [D], cov [D, D]) with each pose group's MAP pose, its covariance over
@@ -139,6 +163,11 @@ class PosedPosterior(Posterior):
     pose_cov: list[Tensor] = field(default_factory=list)
     hypotheses: list[dict[str, Any]] = field(default_factory=list)  # per group: its hypotheses and runner-up
     cameras: list[np.ndarray] = field(default_factory=list)  # per view: its estimated world_to_cam [4, 4]
+    scales: list[float] = field(default_factory=list)  # per view: its group's scale (object -> camera units)
+
+    def posed_views(self, views: Sequence[ObservedView]) -> list[ObservedView]:
+        """The views (as given to the estimate) through their estimated cameras, depth maps in object units."""
+        return [in_object_units(v, c, s) for v, c, s in zip(views, self.cameras, self.scales)]
 
     def pose_record(self, g: int) -> dict[str, Any]:
         """Group g's pose, its std (degrees per axis and overall; object units; log scale) and hypotheses."""
@@ -242,7 +271,8 @@ class Problem:
         self.mu = mu.detach().double()
         self.code_precision = prior_precision(var) if code_precision is None else code_precision
         self.hypotheses = hypotheses  # [G] Pose: each pose prior's centre
-        self.dofs = [groups.dofs(g) for g in range(groups.count)]
+        self.use_depth = settings.mode == "depth"
+        self.dofs = group_dofs(groups, self.views, self.use_depth)
         self.pose_precision = [
             pose_settings.precision(d, self.has_head(g, azimuth_logp)) for g, d in enumerate(self.dofs)
         ]
@@ -252,8 +282,9 @@ class Problem:
         self.grids = GridCache(pose_settings.grid_reuse)
 
     def posed(self, state: State) -> list[ObservedView]:
+        """The views through the state's cameras, in object units: each depth map divided by its group's scale."""
         return [
-            replace(v, world_to_cam=state.poses[g].object_camera(c))
+            in_object_units(v, state.poses[g].object_camera(c), state.poses[g].scale)
             for v, g, c in zip(self.views, self.groups.group, self.groups.cams_from_ref)
         ]
 
@@ -271,7 +302,7 @@ class Problem:
     def residuals(self, state: State) -> tuple[Residuals, Tensor]:
         z = state.z.float()
         grid = self.grids.get(self.decoder, z, self.obs)
-        res = residuals(self.decoder, z, self.posed(state), self.obs, False, jacobian=False, grid=grid)
+        res = residuals(self.decoder, z, self.posed(state), self.obs, self.use_depth, jacobian=False, grid=grid)
         return res, row_weights(res, self.settings)
 
     def energy(self, state: State, res: Residuals, w: Tensor) -> float:

@@ -3,9 +3,10 @@
 Symmetry: chairs and tables look alike from the front and the back, so each pose group starts from several
 azimuths around the object's vertical, at `elevation`, each placed so the fused code's silhouette covers the
 first view's mask box (with a baseline: at the triangulated centre of the views' mask boxes, the scale set to
-match). Without a viewpoint head these are `azimuths` evenly spaced ones; with one, the bins the images allow
-and the best one's half turn, each paying -log p of its azimuth (`joint.appearance_energy`). Every start is
-screened by pose-only Levenberg-Marquardt steps at the fused code with a wide silhouette; the best and the best
+match; with a depth map: scaled about the camera so the code's nearest points sit at the returns' depth, which
+sets the object's distance and size in the depth's units). Without a viewpoint head these are `azimuths` evenly
+spaced ones; with one, the bins the images allow and the best one's half turn, each paying -log p of its azimuth
+(`joint.appearance_energy`). Every start is screened by pose-only Levenberg-Marquardt steps at the fused code with a wide silhouette; the best and the best
 distinct one (`distinct_deg` away) run the joint LM through the sharpness schedule, and the lowest energy wins.
 The runner-up is the lowest run whose pose ends at least `distinct_deg` from the winner's; a gap under
 `ambiguous_gap` is reported as ambiguous (two poses the views explain about equally well). The Laplace
@@ -86,6 +87,41 @@ def placed_hypothesis(
     return pose
 
 
+def depth_placed(pose: Pose, view: ObservedView, cam_from_ref: np.ndarray, points: np.ndarray, cells: int = 12) -> Pose:
+    """The placed pose scaled about the view's camera centre (its silhouette unchanged) so that the code's points
+    nearest the camera sit at the depth the view's returns read: the object's distance and size in the depth
+    map's units. Nearest depths are compared per cell of a cells x cells grid over the mask's box (the median
+    ratio over the cells both cover); a view with no usable return keeps the pose."""
+    if view.depth is None:
+        return pose
+    K = np.asarray(view.K, dtype=np.float64)
+    u0, v0, u1, v1 = mask_box(view)
+    cam = pose.object_camera(cam_from_ref)
+    x = points @ cam[:3, :3].T + cam[:3, 3]  # object units, in the view's camera
+    x = x[x[:, 2] > 1e-3]
+    uv = (x @ K.T)[:, :2] / x[:, 2:3]
+
+    def nearest(u: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray:  # [cells * cells], inf where empty
+        cu = np.floor((u - u0) / max(u1 - u0, 1e-6) * cells).astype(int)
+        cv = np.floor((v - v0) / max(v1 - v0, 1e-6) * cells).astype(int)
+        keep = (cu >= 0) & (cu < cells) & (cv >= 0) & (cv < cells)
+        out = np.full(cells * cells, np.inf)
+        np.minimum.at(out, cv[keep] * cells + cu[keep], z[keep])
+        return out
+
+    depth = view.depth.double().numpy()
+    returns = (depth > 0) & (view.mask.numpy() > 0.5) & view.seen().numpy()
+    rows, cols = np.nonzero(returns)
+    observed = nearest(cols + 0.5, rows + 0.5, depth[rows, cols])
+    predicted = nearest(uv[:, 0], uv[:, 1], x[:, 2] * pose.scale)  # in the camera's units
+    both = np.isfinite(observed) & np.isfinite(predicted)
+    if not both.any():
+        return pose
+    k = float(np.median(observed[both] / predicted[both]))
+    eye = -cam_from_ref[:3, :3].T @ cam_from_ref[:3, 3]  # the view's camera centre in the reference frame
+    return Pose(pose.R, eye + k * (pose.t - eye), pose.scale * k)
+
+
 def hypothesis_azimuths(settings: PoseSettings, bins: int | None) -> list[float]:
     """The azimuths the hypotheses start from: `azimuths` evenly spaced, or every bin of a viewpoint head."""
     count = bins or settings.azimuths
@@ -158,8 +194,13 @@ def hypothesis_rotations(
 def check_views(views: Sequence[ObservedView], groups: PoseGroups, settings: RefineSettings) -> None:
     """A ValueError, before any work, where the pose cannot be estimated from these views: not masks, a group
     entry per view missing, or a view whose mask does not outline the object."""
-    if settings.mode != "masks":
-        raise ValueError("the pose is estimated from masks alone: use mode 'masks' (depth needs known cameras)")
+    if settings.mode not in ("masks", "depth"):
+        raise ValueError(f"the pose is estimated from masks, or masks and depth: mode {settings.mode!r} is neither")
+    if settings.mode == "depth" and settings.observation.depth_residual != "surface":
+        raise ValueError(
+            "the pose is estimated with the 'surface' depth residual only (the traced depth's residual has no "
+            f"derivative in the object's scale here), got depth_residual={settings.observation.depth_residual!r}"
+        )
     if len(groups.group) != len(views):
         raise ValueError(f"{len(views)} views but {len(groups.group)} group entries")
     for i, v in enumerate(views):
@@ -206,6 +247,10 @@ def refine_pose_and_shape(
                 )
                 for azimuth, R in hypothesis_rotations(pose_settings, cam, bins)
             ]
+            ranged = [i for i in members if views[i].depth is not None] if settings.mode == "depth" else []
+            if ranged:  # a depth map: the object's distance, and so its size, in the depth's units
+                ranging = np.asarray(groups.cams_from_ref[ranged[0]], dtype=np.float64)
+                group_starts = [(a, depth_placed(p, views[ranged[0]], ranging, points)) for a, p in group_starts]
             if bins is not None:
                 group_starts = likely_starts(group_starts, g, groups, azimuth_logp, pose_settings)
             starts.append(group_starts)
@@ -343,7 +388,7 @@ def _laplace(problem: Problem, state: State, res, w, J, steps, e, report) -> Pos
     cov = torch.linalg.inv(H_prior + scale.sqrt()[:, None] * information * scale.sqrt()[None, :])
     cov = 0.5 * (cov + cov.T)
     pose_cov = [cov[c : c + d, c : c + d].float() for c, d in zip(problem.columns, problem.dofs)]
-    cameras = [c for c in (v.world_to_cam for v in problem.posed(state))]
+    posed = problem.posed(state)
     return PosedPosterior(
         mu=state.z.float(),
         cov=cov[:D, :D].float(),
@@ -352,9 +397,13 @@ def _laplace(problem: Problem, state: State, res, w, J, steps, e, report) -> Pos
         rows=rows,
         rms=rms,
         information=information[:D, :D],
-        views=[{"used": "masks", "fallback": None} for _ in problem.views],
+        views=[
+            {"used": "depth" if v.depth is not None and problem.use_depth else "masks", "fallback": None}
+            for v in problem.views
+        ],
         poses=state.poses,
         pose_cov=pose_cov,
         hypotheses=report,
-        cameras=cameras,
+        cameras=[v.world_to_cam for v in posed],
+        scales=[state.poses[g].scale for g in problem.groups.group],
     )
