@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from ushape.training.train import is_main_process
+from ushape.training.entry import is_main_process
 
 REPO = Path(__file__).resolve().parents[2]
 N_TRAIN, VIEWS, SHAPES_PER_BATCH, IMAGES_PER_BATCH, EPOCHS = 4, 2, 2, 2, 2

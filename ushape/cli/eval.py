@@ -3,10 +3,12 @@
 import hydra
 from omegaconf import DictConfig
 
-from ushape.evaluation.command import run_eval
 from ushape.workspace import CONFIG_DIR
 
 
 @hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="eval")
 def main(cfg: DictConfig) -> float | None:
+    # Imported once Hydra has composed the config: an unknown option is refused without loading the models (~5 s)
+    from ushape.evaluation.command import run_eval
+
     return run_eval(cfg)

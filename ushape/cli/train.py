@@ -1,9 +1,9 @@
-"""`ushape train` / `python train.py`: Hydra composes conf/train.yaml and ushape.training.train runs it."""
+"""`ushape train` / `python train.py`: Hydra composes conf/train.yaml and ushape.training.entry runs it."""
 
 import hydra
 from omegaconf import DictConfig
 
-from ushape.training.train import run
+from ushape.training.entry import run
 from ushape.workspace import CONFIG_DIR
 
 

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import logging
-import os
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -23,61 +21,17 @@ from ushape.decoder.fit import fit_decoder
 from ushape.decoder.precision import training_bf16
 from ushape.decoder.recode import ensure_codes
 from ushape.encoder.fit import fit_encoder
-from ushape.errors import InputError, bad_input_exit
-from ushape.training.decoder_store import decoder_dir_for, ensure_decoder, legacy_decoder_dir_for, trainer_device
+from ushape.errors import InputError
+from ushape.training.decoder_store import ensure_decoder, trainer_device
 from ushape.training.demo_meshes import demo_digest, write_demo_meshes
-from ushape.training.interrupts import resume_command, resume_exit, stopping_signal, watch_signals
-from ushape.training.summary import discard_if_bookkeeping_only, print_config, print_summary
-from ushape.training.validation import check_config
-from ushape.workspace import CHECKPOINT_DIR, LAST_FILE, RUN_SUMMARY
+from ushape.training.summary import print_config, print_summary
+from ushape.workspace import RUN_SUMMARY
 
 log = logging.getLogger(__name__)
 
-# Set by whoever starts the processes of a distributed run: Lightning's DDP launcher (LOCAL_RANK,
-# NODE_RANK, RANK) or Slurm (SLURM_PROCID). All unset or 0 in the process that writes the results.
-RANK_VARIABLES = ("RANK", "LOCAL_RANK", "NODE_RANK", "SLURM_PROCID")
 
-
-def is_main_process() -> bool:
-    """False in the other processes of a DDP run: they train alongside, and write nothing of their own."""
-    return all(os.environ.get(name, "0") == "0" for name in RANK_VARIABLES)
-
-
-def run(cfg: DictConfig) -> float | None:
-    """Train the configured stage(s); returns the metric a sweeper would minimise (val loss).
-
-    Under DDP every process runs this (Lightning's launcher reruns `train.py` for ranks > 0 when the
-    first `fit` starts); the other ranks join both fits and leave the folders to rank 0.
-    The config is checked before any work; a run that fails leaves no folder without results, and
-    one stopped by SIGTERM or Ctrl+C exits with 128 + the signal's number and prints how to resume.
-    """
-    main = is_main_process()
-    out_dir = Path(cfg.paths.output_dir).resolve()
-    with watch_signals() as watch:
-        try:
-            check_config(cfg)
-            return _train(cfg, out_dir, main)
-        except BaseException as err:
-            if main and discard_if_bookkeeping_only(out_dir):
-                log.info("removed %s: the run stopped before writing anything", out_dir)
-            stop = bad_input_exit(err)  # a bad config or data folder: one line, not a traceback
-            if stop is not None:
-                raise stop from None
-            signum = stopping_signal(err, watch)
-            if signum is None or not main:
-                raise
-            raise resume_exit(signum, resume_command(sys.argv, out_dir), _kept(cfg, out_dir)) from None
-
-
-def _kept(cfg: DictConfig, out_dir: Path) -> list[str]:
-    """What a rerun of a stopped run starts from: the checkpoints already written."""
-    decoder_dir = legacy_decoder_dir_for(cfg) or decoder_dir_for(cfg)
-    found = [decoder_dir / CHECKPOINT_DIR / LAST_FILE, out_dir / CHECKPOINT_DIR / LAST_FILE]
-    kept = [f"{path} (resumed from)" for path in found if path.is_file()]
-    return kept or ["the data world cache (built files are reused); no checkpoint was written yet"]
-
-
-def _train(cfg: DictConfig, out_dir: Path, main: bool) -> float | None:
+def train_stages(cfg: DictConfig, out_dir: Path, main: bool) -> float | None:
+    """Train the configured stage(s) of a checked config into out_dir (`entry.run` guards it); the val metric."""
     out_dir.mkdir(parents=True, exist_ok=True)
     if main:
         print_config(cfg, out_dir / "config_tree.txt")
