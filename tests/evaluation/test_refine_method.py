@@ -326,5 +326,9 @@ def test_pose_estimated_rows_stand_beside_the_known_camera_rows(sphere_world, sp
     assert posed["n"] == known["n"] and posed["label"] == "Ours + refine (masks, pose estimated)"
     assert posed["fallbacks"] == 0
     assert list((tmp_path / "cache" / R.CACHE_FOLDER).glob("pose_*.pt"))
-    with pytest.raises(ValueError, match="set mode: masks"):
-        PoseRefineMethod("depth")
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+
+    rgbd = instantiate(OmegaConf.load(Path(__file__).parents[2] / "conf" / "method" / "refine_depth_pose.yaml"))
+    assert (rgbd.name, rgbd.settings.mode) == ("refine_depth_pose", "depth")
+    assert rgbd.label == "refine (depth, pose estimated)"

@@ -1,4 +1,5 @@
-"""The pose-and-shape refinement as a method of the evaluation: rows "<encoder> + refine (masks, pose estimated)".
+"""The pose-and-shape refinement as a method of the evaluation: rows "<encoder> + refine (masks, pose estimated)",
+and "refine (depth, pose estimated)" where the views' depth maps are read too (an RGB-D camera).
 
 The same views, crops and prior as `refine_method.RefineMethod`'s "refine (masks)" rows, with the object's pose
 hidden: each view keeps its K (and the crop's shift in it), and the views of one instance keep their motion
@@ -24,17 +25,17 @@ from ushape.refinement.pose_search import refine_pose_and_shape
 
 
 class PoseRefineMethod(RefineMethod):
-    """Refinement on the masks with the object's pose estimated (conf/method/refine_masks_pose.yaml); the settings
-    are RefineMethod's (mode masks only), and `pose` sets the search's (`ushape.refinement.joint.PoseSettings`
-    fields, e.g. {azimuths: 4})."""
+    """Refinement on the masks, or masks and depth, with the object's pose estimated
+    (conf/method/refine_masks_pose.yaml, refine_depth_pose.yaml); the settings are RefineMethod's, and `pose` sets
+    the search's (`ushape.refinement.joint.PoseSettings` fields, e.g. {azimuths: 4})."""
 
-    def __init__(self, *args, pose: dict | None = None, **kwargs) -> None:
-        kwargs.setdefault("name", "refine_masks_pose")
-        kwargs.setdefault("label", "refine (masks, pose estimated)")
-        super().__init__(*args, **kwargs)
+    def __init__(self, mode: str = "masks", *args, pose: dict | None = None, **kwargs) -> None:
+        kwargs.setdefault("name", f"refine_{mode}_pose")
+        kwargs.setdefault("label", f"refine ({mode}, pose estimated)")
+        super().__init__(mode, *args, **kwargs)
         self.pose_settings = PoseSettings(**dict(pose or {}))
-        if self.settings.mode != "masks":
-            raise ValueError(f"{self.name}: the pose is estimated from masks; set mode: masks")
+        if self.settings.mode not in ("masks", "depth"):
+            raise ValueError(f"{self.name}: the pose is estimated from masks, or masks and depth; mode: masks|depth")
 
     def after_fusion(self, context, fused: Estimate, keys: Sequence[ViewKey], min_scale: float) -> Estimate:
         run, seed = context.run, context.settings.seed

@@ -6,8 +6,9 @@ first view's mask box (with a baseline: at the triangulated centre of the views'
 match; with a depth map: scaled about the camera so the code's nearest points sit at the returns' depth, which
 sets the object's distance and size in the depth's units). Without a viewpoint head these are `azimuths` evenly
 spaced ones; with one, the bins the images allow and the best one's half turn, each paying -log p of its azimuth
-(`joint.appearance_energy`). Every start is screened by pose-only Levenberg-Marquardt steps at the fused code with a wide silhouette; the best and the best
-distinct one (`distinct_deg` away) run the joint LM through the sharpness schedule, and the lowest energy wins.
+(`joint.appearance_energy`). Every start is screened by pose-only Levenberg-Marquardt steps at the fused code
+with a wide silhouette; the best and the best distinct one (`distinct_deg` away) run the joint LM through the
+sharpness schedule, and the lowest energy wins.
 The runner-up is the lowest run whose pose ends at least `distinct_deg` from the winner's; a gap under
 `ambiguous_gap` is reported as ambiguous (two poses the views explain about equally well). The Laplace
 covariance over (code, pose) is taken at the winner (`joint` module docstring).
