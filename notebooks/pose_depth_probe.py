@@ -1,4 +1,4 @@
-"""What one view's pose estimate lacks: the object's distance. pose_measure.py with one of four probes.
+"""What one view's pose estimate lacks: the object's distance. pose_measure.py with one of five probes.
 
     PYTHONPATH=. python notebooks/pose_depth_probe.py given-position MODEL OUT.jsonl --world W --views 1 \\
         --set translation_prior=0.01
@@ -6,9 +6,12 @@
 
 given-position: every hypothesis starts at the true object position in the first camera (its rotation still
 searched), held there by the translation prior that --set gives: the known-camera refinement's IoU that is left
-to the rotation alone. One view only (a group's reference camera is the first view's).
+to the rotation alone. One view only (a group's reference camera is the first view's). With --mode depth the
+true scale (1) is kept too where --set scale_prior=0.01 holds it.
 trace: prints each LM call's depth error (the object's origin along the first camera's axis, + farther) before
 and after it, for the screening (code fixed, the widest silhouette) and the joint runs: where the estimate moves.
+given-scale (--mode depth): the hypotheses placed by the mask's box at the true scale (1: the world's depth is in
+object units) instead of by the depth, held there by --set scale_prior=0.01; the position is estimated.
 hold-in-screening: PoseSettings.hold_depth in the screening only, the joint runs free.
 reset-after-screening: each screened hypothesis's depth put back where the mask's box placed it (its image
 centre kept), the joint runs free from there.
@@ -75,12 +78,15 @@ PROBES = {"trace": traced, "hold-in-screening": held_in_screening, "reset-after-
 
 
 def main() -> None:
-    if len(sys.argv) < 2 or sys.argv[1] not in ("given-position", *PROBES):
+    if len(sys.argv) < 2 or sys.argv[1] not in ("given-position", "given-scale", *PROBES):
         raise SystemExit(__doc__)
     probe = sys.argv.pop(1)
     pose_measure.pose_row = pose_row
     if probe == "given-position":
         pose_search.placed_hypothesis = at_true_position
+        pose_search.depth_placed = lambda pose, *args, **kwargs: pose  # --mode depth: the truth is not moved
+    elif probe == "given-scale":
+        pose_search.depth_placed = lambda pose, *args, **kwargs: pose  # placed at scale 1, the world's truth
     else:
         pose_search.staged = PROBES[probe]
     pose_measure.main()
