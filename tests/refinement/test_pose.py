@@ -16,6 +16,7 @@ from ushape.data.cameras import look_at
 from ushape.propagation.sphere_tracing import camera_rays, sphere_trace
 from ushape.refinement.joint import GridCache, PoseGroups, PoseSettings, Problem, State, grid_probes, group_dofs
 from ushape.refinement.pose import Pose, exp_so3, log_so3, point_jacobian, rotation_angle_deg, scale_observable
+from ushape.refinement.pose_depth import usable_depth
 from ushape.refinement.pose_search import refine_from_poses, refine_pose_and_shape
 from ushape.refinement.posterior import refine_settings
 from ushape.refinement.ray_search import ray_minimum
@@ -265,6 +266,11 @@ def test_a_depth_map_gives_the_object_its_distance_and_size_from_one_view():
     assert post.record()["views"][0]["used"] == "depth"
     posed = post.posed_views([view])[0]
     torch.testing.assert_close(posed.depth, depth / pose.scale)  # the same division, no tolerance needed
+    # a depth map that cannot be read is dropped, as the known-camera refinement drops it: the mask alone, and why
+    broken = dataclasses.replace(view, depth=torch.full_like(depth, float("nan")))
+    kept, notes = usable_depth([view, broken], refine_settings("depth"))
+    assert kept[0].depth is depth and kept[1].depth is None
+    assert notes == [None, "depth holds NaN or inf: masks only"]
     # from its masks alone one view has no scale in its state: the size stays the code's, the distance in its units
     assert group_dofs(PoseGroups.separate(1), [view], use_depth=False) == [6]
     assert group_dofs(PoseGroups.separate(1), [dataclasses.replace(view, depth=None)], use_depth=True) == [6]

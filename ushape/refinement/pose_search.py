@@ -38,8 +38,9 @@ from ushape.refinement.joint import (
 )
 from ushape.refinement.observation import code_functions
 from ushape.refinement.pose import Pose, rotation_angle_deg
+from ushape.refinement.pose_depth import depth_placed, usable_depth
 from ushape.refinement.posterior import RefineSettings, summarise
-from ushape.refinement.views import ObservedView, screen_view
+from ushape.refinement.views import ObservedView, mask_box, screen_view
 
 
 def interior_points(decoder: torch.nn.Module, z: Tensor, nodes: int = 24) -> Tensor:
@@ -50,13 +51,6 @@ def interior_points(decoder: torch.nn.Module, z: Tensor, nodes: int = 24) -> Ten
     values = sdf(points)
     inside = values < 0
     return points[inside] if bool(inside.any()) else points[values.argmin()][None]
-
-
-def mask_box(view: ObservedView) -> tuple[float, float, float, float]:
-    """(u0, v0, u1, v1) of the mask's observed foreground, pixel edges."""
-    mask = (view.mask > 0.5) & view.seen()
-    rows, cols = mask.any(1).nonzero().squeeze(1), mask.any(0).nonzero().squeeze(1)
-    return float(cols.min()), float(rows.min()), float(cols.max() + 1), float(rows.max() + 1)
 
 
 def placed_hypothesis(
@@ -86,41 +80,6 @@ def placed_hypothesis(
         origin_ref = R_c.T @ (centre_cam * pose.scale - t_c)
         pose = Pose(R, origin_ref, pose.scale)
     return pose
-
-
-def depth_placed(pose: Pose, view: ObservedView, cam_from_ref: np.ndarray, points: np.ndarray, cells: int = 12) -> Pose:
-    """The placed pose scaled about the view's camera centre (its silhouette unchanged) so that the code's points
-    nearest the camera sit at the depth the view's returns read: the object's distance and size in the depth
-    map's units. Nearest depths are compared per cell of a cells x cells grid over the mask's box (the median
-    ratio over the cells both cover); a view with no usable return keeps the pose."""
-    if view.depth is None:
-        return pose
-    K = np.asarray(view.K, dtype=np.float64)
-    u0, v0, u1, v1 = mask_box(view)
-    cam = pose.object_camera(cam_from_ref)
-    x = points @ cam[:3, :3].T + cam[:3, 3]  # object units, in the view's camera
-    x = x[x[:, 2] > 1e-3]
-    uv = (x @ K.T)[:, :2] / x[:, 2:3]
-
-    def nearest(u: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray:  # [cells * cells], inf where empty
-        cu = np.floor((u - u0) / max(u1 - u0, 1e-6) * cells).astype(int)
-        cv = np.floor((v - v0) / max(v1 - v0, 1e-6) * cells).astype(int)
-        keep = (cu >= 0) & (cu < cells) & (cv >= 0) & (cv < cells)
-        out = np.full(cells * cells, np.inf)
-        np.minimum.at(out, cv[keep] * cells + cu[keep], z[keep])
-        return out
-
-    depth = view.depth.double().numpy()
-    returns = (depth > 0) & (view.mask.numpy() > 0.5) & view.seen().numpy()
-    rows, cols = np.nonzero(returns)
-    observed = nearest(cols + 0.5, rows + 0.5, depth[rows, cols])
-    predicted = nearest(uv[:, 0], uv[:, 1], x[:, 2] * pose.scale)  # in the camera's units
-    both = np.isfinite(observed) & np.isfinite(predicted)
-    if not both.any():
-        return pose
-    k = float(np.median(observed[both] / predicted[both]))
-    eye = -cam_from_ref[:3, :3].T @ cam_from_ref[:3, 3]  # the view's camera centre in the reference frame
-    return Pose(pose.R, eye + k * (pose.t - eye), pose.scale * k)
 
 
 def hypothesis_azimuths(settings: PoseSettings, bins: int | None) -> list[float]:
@@ -229,6 +188,7 @@ def refine_pose_and_shape(
     check_views(views, groups, settings)
     if azimuth_logp is not None and len(azimuth_logp) != len(views):
         raise ValueError(f"{len(views)} views but {len(azimuth_logp)} azimuth distributions")
+    views, notes = usable_depth(views, settings)
     with frozen(decoder):
         points = interior_points(decoder, mu.detach()).numpy().astype(np.float64)
         starts = []
@@ -255,7 +215,7 @@ def refine_pose_and_shape(
             if bins is not None:
                 group_starts = likely_starts(group_starts, g, groups, azimuth_logp, pose_settings)
             starts.append(group_starts)
-        return _search(decoder, mu, var, views, groups, settings, pose_settings, starts, azimuth_logp)
+        return _search(decoder, mu, var, views, groups, settings, pose_settings, starts, azimuth_logp, notes)
 
 
 def refine_from_poses(
@@ -276,11 +236,15 @@ def refine_from_poses(
     check_views(views, groups, settings)
     if len(poses) != groups.count:
         raise ValueError(f"{groups.count} pose groups but {len(poses)} starting poses")
+    views, notes = usable_depth(views, settings)
     with frozen(decoder):
-        return _search(decoder, mu, var, views, groups, settings, pose_settings, [[(0.0, p)] for p in poses])
+        starts = [[(0.0, p)] for p in poses]
+        return _search(decoder, mu, var, views, groups, settings, pose_settings, starts, notes=notes)
 
 
-def _search(decoder, mu, var, views, groups, settings, pose_settings, starts, azimuth_logp=None) -> PosedPosterior:
+def _search(
+    decoder, mu, var, views, groups, settings, pose_settings, starts, azimuth_logp=None, notes=None
+) -> PosedPosterior:
     """Screen every group's hypotheses at the fused code (the other groups at their best so far), run the joint LM
     from the best of all groups and from each group's distinct alternates, and return the lowest-energy run's
     Laplace posterior with each group's runner-up."""
@@ -331,7 +295,7 @@ def _search(decoder, mu, var, views, groups, settings, pose_settings, starts, az
     winner = min(runs, key=lambda r: r["energy"])
     report = [_group_report(g, screened[g], chosen[g], runs, winner, pose_settings) for g in range(len(screened))]
     res, w, J, steps = winner["fit"]
-    return _laplace(winner["problem"], winner["state"], res, w, J, steps, winner["energy"], report)
+    return _laplace(winner["problem"], winner["state"], res, w, J, steps, winner["energy"], report, notes)
 
 
 def distinct_rows(rows: list[dict[str, Any]], pose_settings: PoseSettings) -> list[int]:
@@ -374,7 +338,7 @@ def _group_report(g, rows, picks, runs, winner, pose_settings) -> dict[str, Any]
     }
 
 
-def _laplace(problem: Problem, state: State, res, w, J, steps, e, report) -> PosedPosterior:
+def _laplace(problem: Problem, state: State, res, w, J, steps, e, report, notes=None) -> PosedPosterior:
     D = problem.mu.shape[0]
     rows, rms = summarise(res)
     if J is None or not torch.isfinite(J).all():
@@ -399,8 +363,8 @@ def _laplace(problem: Problem, state: State, res, w, J, steps, e, report) -> Pos
         rms=rms,
         information=information[:D, :D],
         views=[
-            {"used": "depth" if v.depth is not None and problem.use_depth else "masks", "fallback": None}
-            for v in problem.views
+            {"used": "depth" if v.depth is not None and problem.use_depth else "masks", "fallback": note}
+            for v, note in zip(problem.views, notes or [None] * len(problem.views))
         ],
         poses=state.poses,
         pose_cov=pose_cov,

@@ -174,3 +174,10 @@ def screen_view(view: ObservedView | None, use_depth: bool) -> ScreenedView:
     if not bool((depth > 0).any()):
         return ScreenedView(replace(view, depth=None), "masks", "no depth return (all 0): masks only")
     return ScreenedView(view, "masks+depth")
+
+
+def mask_box(view: ObservedView) -> tuple[float, float, float, float]:
+    """(u0, v0, u1, v1) of the mask's observed foreground, pixel edges."""
+    mask = (view.mask > 0.5) & view.seen()
+    rows, cols = mask.any(1).nonzero().squeeze(1), mask.any(0).nonzero().squeeze(1)
+    return float(cols.min()), float(rows.min()), float(cols.max() + 1), float(rows.max() + 1)
