@@ -384,3 +384,12 @@ def test_fit_refinement_stores_a_calibration_that_the_refinement_then_applies(ti
         calibration_path(checkpoint).unlink(missing_ok=True)
         for shape_id in ("val_0", "val_1", "val_2"):
             world.sdf_path(shape_id).unlink()
+
+
+def test_the_printed_pose_line_gives_the_scale_only_where_it_was_estimated():
+    from ushape.reconstruction.cli import pose_outcome
+
+    group = {"rotation_std_deg": 2.0, "translation_std": [0.01, 0.02, 0.05], "scale": 1.0, "scale_std": None}
+    assert "scale" not in pose_outcome(group, 0) and "translation std 0.050" in pose_outcome(group, 0)
+    ranged = {**group, "scale": 0.804, "scale_std": 0.118}  # a depth map or a baseline: the size is estimated
+    assert pose_outcome(ranged, 0).endswith(", scale 0.804 (log std 0.118)")

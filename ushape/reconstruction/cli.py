@@ -271,11 +271,14 @@ def refinement_outcome(record: dict) -> str:
 
 
 def pose_outcome(group: dict, index: int) -> str:
-    """One line per estimated pose: its std, and the runner-up where the masks leave the pose ambiguous."""
+    """One line per estimated pose: its std, its scale where a baseline or a depth map makes it observable, and
+    the runner-up where the views leave the pose ambiguous."""
     line = (
         f"pose {index} estimated (no camera given): rotation std {group['rotation_std_deg']:.1f} deg, translation std "
         f"{max(group['translation_std']):.3f} object units"
     )
+    if group.get("scale_std") is not None:
+        line += f", scale {group['scale']:.3f} (log std {group['scale_std']:.3f})"
     runner = group.get("runner_up")
     if runner is not None:
         verdict = "AMBIGUOUS: " if group["ambiguous"] else ""
