@@ -235,7 +235,7 @@ def main() -> None:
         parser.error("this model names no world (a shipped model): pass --world, the r2n2 world it was measured on")
     world = WorldIndex.load(args.world or predictor.world)
     args.fit = read_refinement_calibration(predictor.checkpoint, args.mode)
-    args.pose_settings = pose_settings_for(predictor.checkpoint)  # its fitted pose information scale, if any
+    args.pose_settings = pose_settings_for(predictor.checkpoint, args.mode)  # its fitted pose information scale
     if args.grid_reuse is not None:
         args.pose_settings = replace(args.pose_settings, grid_reuse=args.grid_reuse)
     args.pose_settings = replace(args.pose_settings, **dict(pose_field(item) for item in args.set))

@@ -316,6 +316,23 @@ def test_the_pose_information_scale_scales_the_pose_posterior_and_is_fitted_to_t
         fitted_pose_scale([], 1.0)
 
 
+def test_the_pose_calibration_is_kept_per_refinement_mode_and_an_older_file_is_the_masks(tmp_path):
+    import json
+
+    from ushape.reconstruction.pose_calibration import pose_settings_for, read_pose_calibration
+    from ushape.workspace import POSE_CALIBRATION_FILE
+
+    checkpoint = tmp_path / "best.ckpt"
+    assert pose_settings_for(checkpoint, "depth").pose_information_scale is None  # no file: the code's scale
+    (tmp_path / POSE_CALIBRATION_FILE).write_text(json.dumps({"pose_information_scale": 0.02, "cases": 5}))
+    assert read_pose_calibration(checkpoint)["cases"] == 5  # written before the fits were kept per mode
+    assert pose_settings_for(checkpoint, "masks").pose_information_scale == 0.02
+    assert pose_settings_for(checkpoint, "depth").pose_information_scale is None
+    both = {"masks": {"pose_information_scale": 0.02}, "depth": {"pose_information_scale": 0.005}}
+    (tmp_path / POSE_CALIBRATION_FILE).write_text(json.dumps(both))
+    assert pose_settings_for(checkpoint, "depth").pose_information_scale == 0.005
+
+
 def test_holding_the_depth_keeps_the_distance_while_the_pose_moves_across_the_view():
     """With hold_depth, the pose-only steps (code fixed) move the object across the camera's view and turn it, but
     leave its distance along the camera's axis; without it they move the distance too (here: back towards the

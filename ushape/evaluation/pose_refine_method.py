@@ -75,7 +75,7 @@ class PoseRefineMethod(RefineMethod):
         (`reconstruct.py --fit-pose`) unless the method's `pose` sets one."""
         if not self.calibrated or self.pose_settings.pose_information_scale is not None:
             return self.pose_settings
-        fitted = pose_settings_for(run.predictor.checkpoint).pose_information_scale
+        fitted = pose_settings_for(run.predictor.checkpoint, self.settings.mode).pose_information_scale
         return replace(self.pose_settings, pose_information_scale=fitted)
 
     @staticmethod

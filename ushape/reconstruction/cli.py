@@ -110,9 +110,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--fit-pose",
-        action="store_true",
-        help="fit the pose posterior's information scale on --fit-shapes val shapes (1 and 3 views, cameras hidden; "
-        "after --fit-viewpoint and --fit-refinement masks) and store pose_calibration.json (docs/pose.md)",
+        nargs="?",
+        const="masks",
+        default=None,
+        choices=("masks", "depth"),
+        help="fit the pose posterior's information scale for --refine masks (the default) or depth on --fit-shapes "
+        "val shapes (1 and 3 views, cameras hidden; after --fit-viewpoint and --fit-refinement of that mode) and "
+        "store it in pose_calibration.json (docs/pose.md)",
     )
     parser.add_argument(
         "--viewpoint-shapes",
@@ -303,7 +307,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(json.dumps(record, indent=2))
             return 0
         if args.fit_pose:
-            record = fit_and_store_pose_calibration(predictor_of(args, temperature=True), args.fit_shapes)
+            predictor = predictor_of(args, temperature=True)
+            record = fit_and_store_pose_calibration(predictor, args.fit_shapes, mode=args.fit_pose)
             print(json.dumps(record, indent=2))
             return 0
         if args.fit_refinement:

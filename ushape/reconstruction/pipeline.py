@@ -136,7 +136,7 @@ def encode_views(
                 r2n2_frame_of(predictor),
                 mask_files(inputs, paths, masks),
                 lambda: predictor.azimuth_log_probs(images),
-                pose_settings_for(predictor.checkpoint),
+                pose_settings_for(predictor.checkpoint, settings.refine or "masks"),
             )
     return encoded
 

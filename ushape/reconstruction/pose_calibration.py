@@ -48,17 +48,22 @@ def fitted_pose_scale(ratios: Sequence[float], code_scale: float) -> float:
 
 
 def fit_and_store_pose_calibration(
-    predictor: Predictor, n_shapes: int = 20, views: Sequence[int] = (1, 3), size: int | None = None
+    predictor: Predictor,
+    n_shapes: int = 20,
+    views: Sequence[int] = (1, 3),
+    size: int | None = None,
+    mode: str = "masks",
 ) -> dict[str, Any]:
     """Estimate the pose of the first n_shapes val shapes from `views` of their renders (cameras hidden, relative
-    motion given), fit s_pose and store it beside the checkpoint; returns the record."""
+    motion given) on their masks, or masks and depth (mode), fit s_pose and store it beside the checkpoint under
+    the mode (the other mode's fit kept); returns the record."""
     if predictor.world is None:
         raise InputError("the pose calibration is fitted on the model's val shapes: pass a run (--run)")
     world = WorldIndex.load(predictor.world)
     fusion = default_fusion(predictor)
-    fit = read_refinement_calibration(predictor.checkpoint, "masks")
+    fit = read_refinement_calibration(predictor.checkpoint, mode)
     code_scale = float(fit["information_scale"]) if fit else 1.0
-    settings = refine_settings("masks", size, information_scale=code_scale)
+    settings = refine_settings(mode, size, information_scale=code_scale)
     ratios, flips = [], 0
     for shape_id in world.shape_ids("val")[:n_shapes]:
         files = view_files(world.root, shape_id)
@@ -67,7 +72,7 @@ def fit_and_store_pose_calibration(
         for n in views:
             chosen = spread_views(len(files), n)
             fused = fusion(mu[chosen], var[chosen])
-            observed = world_views(world.views_path(shape_id), chosen, with_depth=False)
+            observed = world_views(world.views_path(shape_id), chosen, with_depth=mode == "depth")
             groups = PoseGroups.from_cameras([v.world_to_cam for v in observed])
             logp = predictor.azimuth_log_probs(images[chosen])
             post = refine_pose_and_shape(
@@ -89,20 +94,29 @@ def fit_and_store_pose_calibration(
         "views": list(views),
     }
     path = Path(predictor.checkpoint).parent / POSE_CALIBRATION_FILE
-    atomic.write_json(path, record)
-    log.info("pose calibration -> %s: %s", path, record)
-    return {"path": str(path), **record}
+    stored = stored_pose_calibration(path)
+    stored[mode] = record
+    atomic.write_json(path, stored)
+    log.info("pose calibration (%s) -> %s: %s", mode, path, record)
+    return {"path": str(path), "mode": mode, **record}
 
 
-def read_pose_calibration(checkpoint: str | Path) -> dict[str, Any] | None:
-    """The record `fit_and_store_pose_calibration` stored beside the checkpoint, or None."""
-    path = Path(checkpoint).parent / POSE_CALIBRATION_FILE
+def stored_pose_calibration(path: Path) -> dict[str, dict[str, Any]]:
+    """Every mode's fit in pose_calibration.json ({} where there is none); a file written before the fits were kept
+    per mode holds the masks' alone."""
     if not path.is_file():
-        return None
-    return atomic.read_json_object(path, "delete it and refit with `python reconstruct.py --fit-pose --run RUN`")
+        return {}
+    stored = atomic.read_json_object(path, "delete it and refit with `python reconstruct.py --fit-pose --run RUN`")
+    return {"masks": stored} if "pose_information_scale" in stored else stored
 
 
-def pose_settings_for(checkpoint: str | Path) -> PoseSettings:
-    """The pose search's settings with the checkpoint's fitted pose information scale, where it has one."""
-    record = read_pose_calibration(checkpoint)
+def read_pose_calibration(checkpoint: str | Path, mode: str = "masks") -> dict[str, Any] | None:
+    """The record `fit_and_store_pose_calibration` stored beside the checkpoint for this mode, or None."""
+    return stored_pose_calibration(Path(checkpoint).parent / POSE_CALIBRATION_FILE).get(mode)
+
+
+def pose_settings_for(checkpoint: str | Path, mode: str = "masks") -> PoseSettings:
+    """The pose search's settings with the checkpoint's pose information scale fitted for this refinement mode,
+    where it has one."""
+    record = read_pose_calibration(checkpoint, mode)
     return PoseSettings(pose_information_scale=None if record is None else float(record["pose_information_scale"]))
