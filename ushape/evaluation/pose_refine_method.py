@@ -20,6 +20,7 @@ from ushape import atomic
 from ushape.evaluation.refine_method import EvaluationView, RefineMethod, evaluation_view
 from ushape.evaluation.views import Estimate, ViewKey, encoder_inputs
 from ushape.reconstruction.pose_calibration import pose_settings_for
+from ushape.refinement import MODES
 from ushape.refinement.joint import PoseGroups, PoseSettings
 from ushape.refinement.pose_search import refine_pose_and_shape
 
@@ -34,7 +35,7 @@ class PoseRefineMethod(RefineMethod):
         kwargs.setdefault("label", f"refine ({mode}, pose estimated)")
         super().__init__(mode, *args, **kwargs)
         self.pose_settings = PoseSettings(**dict(pose or {}))
-        if self.settings.mode not in ("masks", "depth"):
+        if self.settings.mode not in MODES:
             raise ValueError(f"{self.name}: the pose is estimated from masks, or masks and depth; mode: masks|depth")
 
     def after_fusion(self, context, fused: Estimate, keys: Sequence[ViewKey], min_scale: float) -> Estimate:

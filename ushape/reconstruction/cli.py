@@ -113,7 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
         nargs="?",
         const="masks",
         default=None,
-        choices=("masks", "depth"),
+        choices=REFINE_MODES,
         help="fit the pose posterior's information scale for --refine masks (the default) or depth on --fit-shapes "
         "val shapes (1 and 3 views, cameras hidden; after --fit-viewpoint and --fit-refinement of that mode) and "
         "store it in pose_calibration.json (docs/pose.md)",

@@ -61,7 +61,7 @@ def check_settings(settings: ReconstructionSettings) -> None:
         raise ValueError(f"refine must be one of {REFINE_MODES} or None, got {settings.refine!r}")
     if settings.pose not in POSE_CHOICES:
         raise ValueError(f"pose (--pose) must be one of {POSE_CHOICES}, got {settings.pose!r}")
-    if settings.refine not in ("masks", "depth") and (settings.pose == "estimate" or settings.relative_poses):
+    if settings.refine not in REFINE_MODES and (settings.pose == "estimate" or settings.relative_poses):
         raise ValueError(
             "the object's pose is estimated with its shape from masks (or masks and depth): --pose estimate and "
             "--relative-poses need --refine masks or --refine depth"

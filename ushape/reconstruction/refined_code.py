@@ -14,7 +14,7 @@ from ushape.data.layout import WorldIndex
 from ushape.fusion.rules import FusedCode
 from ushape.reconstruction.predictor import Predictor
 from ushape.reconstruction.settings import ReconstructionSettings
-from ushape.refinement import ObservedView, refine, refine_settings
+from ushape.refinement import MODES, ObservedView, refine, refine_settings
 from ushape.refinement.inputs import (
     R2N2Frame,
     input_views,
@@ -88,7 +88,7 @@ def estimates_pose(settings: ReconstructionSettings, views: Sequence[ObservedVie
     """Whether the object's pose is estimated: asked (--pose estimate, or --relative-poses given), on masks or on
     masks and depth (a camera file's `depth`, in any units: it gives the object's distance and size), or by
     default (auto) where the refinement is on masks and no view has a camera (an image alone has no depth map)."""
-    if settings.pose == "given" or settings.refine not in ("masks", "depth"):
+    if settings.pose == "given" or settings.refine not in MODES:
         return False
     if settings.pose == "estimate" or settings.relative_poses:
         return True

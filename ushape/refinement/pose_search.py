@@ -39,7 +39,7 @@ from ushape.refinement.joint import (
 from ushape.refinement.observation import code_functions
 from ushape.refinement.pose import Pose, rotation_angle_deg
 from ushape.refinement.pose_depth import depth_placed, usable_depth
-from ushape.refinement.posterior import RefineSettings, summarise
+from ushape.refinement.posterior import MODES, RefineSettings, summarise
 from ushape.refinement.views import ObservedView, mask_box, screen_view
 
 
@@ -154,7 +154,7 @@ def hypothesis_rotations(
 def check_views(views: Sequence[ObservedView], groups: PoseGroups, settings: RefineSettings) -> None:
     """A ValueError, before any work, where the pose cannot be estimated from these views: not masks, a group
     entry per view missing, or a view whose mask does not outline the object."""
-    if settings.mode not in ("masks", "depth"):
+    if settings.mode not in MODES:
         raise ValueError(f"the pose is estimated from masks, or masks and depth: mode {settings.mode!r} is neither")
     if settings.mode == "depth" and settings.observation.depth_residual != "surface":
         raise ValueError(
