@@ -359,3 +359,16 @@ def test_holding_the_depth_keeps_the_distance_while_the_pose_moves_across_the_vi
     before = np.linalg.norm(start.t[:2] - target)
     assert np.linalg.norm(start.t[:2] + moved[True][:2] - target) < 0.5 * before, (start.t, moved, target)
     assert moved[False][2] < -0.1  # free, the distance moves back towards the truth
+
+
+def test_a_damaged_pose_calibration_stops_the_fit_before_any_pose_is_searched(tmp_path):
+    from types import SimpleNamespace
+
+    from ushape.errors import InputError
+    from ushape.reconstruction.pose_calibration import fit_and_store_pose_calibration
+    from ushape.workspace import POSE_CALIBRATION_FILE
+
+    (tmp_path / POSE_CALIBRATION_FILE).write_text("{not json")
+    predictor = SimpleNamespace(world=str(tmp_path / "no_world"), checkpoint=str(tmp_path / "best.ckpt"))
+    with pytest.raises(InputError, match="refit with"):  # named before the world is even opened
+        fit_and_store_pose_calibration(predictor, mode="depth")

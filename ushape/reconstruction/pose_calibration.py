@@ -59,6 +59,8 @@ def fit_and_store_pose_calibration(
     the mode (the other mode's fit kept); returns the record."""
     if predictor.world is None:
         raise InputError("the pose calibration is fitted on the model's val shapes: pass a run (--run)")
+    path = Path(predictor.checkpoint).parent / POSE_CALIBRATION_FILE
+    stored_pose_calibration(path)  # read before the fit: a damaged file stops it now, not after the fit
     world = WorldIndex.load(predictor.world)
     fusion = default_fusion(predictor)
     fit = read_refinement_calibration(predictor.checkpoint, mode)
@@ -93,8 +95,7 @@ def fit_and_store_pose_calibration(
         "n_shapes": n_shapes,
         "views": list(views),
     }
-    path = Path(predictor.checkpoint).parent / POSE_CALIBRATION_FILE
-    stored = stored_pose_calibration(path)
+    stored = stored_pose_calibration(path)  # again: another fit may have written it since
     stored[mode] = record
     atomic.write_json(path, stored)
     log.info("pose calibration (%s) -> %s: %s", mode, path, record)
