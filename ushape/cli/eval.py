@@ -3,6 +3,7 @@
 import hydra
 from omegaconf import DictConfig
 
+from ushape.training.lightning_logs import log_lightning_once
 from ushape.workspace import CONFIG_DIR
 
 
@@ -11,4 +12,5 @@ def main(cfg: DictConfig) -> float | None:
     # Imported once Hydra has composed the config: an unknown option is refused without loading the models (~5 s)
     from ushape.evaluation.command import run_eval
 
+    log_lightning_once()
     return run_eval(cfg)

@@ -17,6 +17,7 @@ from omegaconf import DictConfig
 from ushape.errors import bad_input_exit
 from ushape.training.decoder_store import decoder_dir_for, legacy_decoder_dir_for
 from ushape.training.interrupts import resume_command, resume_exit, stopping_signal, watch_signals
+from ushape.training.lightning_logs import log_lightning_once
 from ushape.training.summary import discard_if_bookkeeping_only
 from ushape.training.validation import check_config
 from ushape.workspace import CHECKPOINT_DIR, LAST_FILE
@@ -48,6 +49,7 @@ def run(cfg: DictConfig) -> float | None:
             check_config(cfg)
             from ushape.training.train import train_stages  # Lightning and the models: only for a config that passed
 
+            log_lightning_once()
             return train_stages(cfg, out_dir, main)
         except BaseException as err:
             if main and discard_if_bookkeeping_only(out_dir):
