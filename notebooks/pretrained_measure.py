@@ -41,6 +41,7 @@ from ushape.metrics.voxel_iou import PROTOCOL_LEVEL, numpy_sdf, voxel_iou  # noq
 from ushape.propagation import SDF_CLAMP  # noqa: E402
 from ushape.propagation.field import code_mesh  # noqa: E402
 from ushape.propagation.linearised import latent_jacobian, latent_variance  # noqa: E402
+from ushape.recalibration.refine_information import refined_sdf_temperature  # noqa: E402
 from ushape.reconstruction.calibrated_fusion import default_fusion  # noqa: E402
 from ushape.reconstruction.pretrained import open_model  # noqa: E402
 from ushape.reconstruction.refine_calibration import read_refinement_calibration  # noqa: E402
@@ -104,7 +105,7 @@ def shape_rows(args, predictor, fusion, world, codes, shape_id, done) -> list[di
         post = refine(decoder, fused.mu, fused.var, world_views(world.views_path(shape_id), chosen), options)
         seconds = time.perf_counter() - start
         cov = post.cov if post.fallback is None else torch.diag(fused.var)
-        refined_t = fit["sdf_temperature"] if fit and "sdf_temperature" in fit else 1.0
+        refined_t = refined_sdf_temperature(fit, n) if fit and "sdf_temperature" in fit else 1.0
         refined_floor = fit.get("sdf_floor", 0.0) if fit else 0.0
         row = {**base, "views": n, "chosen": chosen}
         row["fused"] = scores(decoder, fused.mu, voxels, frame, reference)

@@ -252,7 +252,7 @@ def sdf_seen_calibration(rows, key, fit):
 def fit_sdf(val, mode, scale, misfit):
     """(T_sdf, floor) of the refined SDF variance at information scale s, fitted on the val rows at 1, 3, 10 views."""
     groups = [sdf_pool(sel, mode, scale) for n in VIEWS if (sel := [r for r in val if r["views"] == n])]
-    temperature, floor, before, after = fit_sdf_recalibration(groups, misfit)
+    temperature, floor, _, before, after = fit_sdf_recalibration(groups, misfit)
     print(
         f"{mode}: SDF variance at s = {scale:.4g}: T_sdf {temperature:.3g}, floor {floor:.4g} (val worst CE "
         f"{max(before):.3f} -> {max(after):.3f})"

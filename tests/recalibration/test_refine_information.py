@@ -9,6 +9,7 @@ from ushape.recalibration.refine_information import (
     fit_information_scale,
     fit_sdf_recalibration,
     fit_sdf_recalibration_seen,
+    refined_sdf_temperature,
     scaled_posterior_std,
     seen_floor_variance,
 )
@@ -54,10 +55,11 @@ def test_the_refined_sdf_variance_gets_back_a_known_factor_and_floor():
         std = torch.rand(8000, generator=gen, dtype=torch.float64) * spread + 1e-4
         scale = (factor * std.square() + floor**2).sqrt()
         groups.append(((scale * torch.randn(8000, generator=gen, dtype=torch.float64)).abs(), std))
-    found, found_floor, before, after = fit_sdf_recalibration(groups, misfit=0.014)
+    found, found_floor, exponent, before, after = fit_sdf_recalibration(groups, misfit=0.014)
     # The floors tried are 2^(1/2) apart below the misfit (0.0099 is one): the fit lands within a step of each.
     assert found_floor == pytest.approx(floor, rel=0.45) and found == pytest.approx(factor, rel=0.45)
     assert max(after) < 0.03 and min(before) > 0.15  # within a grid step of calibrated, from far over-confident
+    assert exponent == 0.0  # no view counts given: one factor for every group
     with pytest.raises(ValueError, match="at least one"):
         fit_sdf_recalibration([], misfit=0.01)
 
@@ -88,3 +90,37 @@ def test_seen_and_unseen_floors_drawn_apart_are_recovered_each_calibrated():
         fit_sdf_recalibration_seen([], misfit=0.01)
     with pytest.raises(ValueError, match="must be equal"):
         fit_sdf_recalibration_seen([(torch.ones(3), torch.ones(3), torch.ones(2, dtype=torch.bool))], misfit=0.01)
+
+
+def test_a_factor_that_grows_with_the_views_is_recovered_and_one_factor_for_all_is_worse():
+    # Errors carry T n^beta var + floor^2 at n = 1, 3 and 10 views, beta = 0.4: the posterior's std shrinks
+    # with the views faster than its error does. Fitted with the exponent, every count is calibrated; with
+    # one factor, the worst count is not.
+    gen = torch.Generator().manual_seed(11)
+    factor, beta, floor, counts, groups = 0.5, 0.4, 0.004, (1, 3, 10), []
+    for n, spread in zip(counts, (0.03, 0.015, 0.006)):
+        std = torch.rand(6000, generator=gen, dtype=torch.float64) * spread + 1e-4
+        scale = (factor * n**beta * std.square() + floor**2).sqrt()
+        groups.append(((scale * torch.randn(6000, generator=gen, dtype=torch.float64)).abs(), std))
+    fit = fit_sdf_recalibration(groups, misfit=0.008, view_counts=counts, exponents=(0.0, 0.2, 0.4, 0.6))
+    assert fit.view_exponent == 0.4 and fit.temperature == pytest.approx(factor, rel=0.2)
+    assert max(fit.after) < 0.03
+    one = fit_sdf_recalibration(groups, misfit=0.008)
+    assert one.view_exponent == 0.0 and max(one.after) > 2 * max(fit.after)
+    # The seen model takes the same exponent.
+    seen = [(e, s, torch.arange(len(e)) % 2 == 0) for e, s in groups]
+    fit_seen = fit_sdf_recalibration_seen(
+        seen, misfit=0.008, view_counts=counts, exponents=(0.0, 0.4), grid=tuple(2.0 ** (k / 4) for k in range(-8, 5))
+    )
+    assert fit_seen["sdf_view_exponent"] == 0.4 and max(fit_seen["after"]) < 0.04
+    with pytest.raises(ValueError, match="one view count"):
+        fit_sdf_recalibration(groups, misfit=0.008, view_counts=(1, 3), exponents=(0.0, 0.4))
+    with pytest.raises(ValueError, match="needs view_counts"):
+        fit_sdf_recalibration(groups, misfit=0.008, exponents=(0.0, 0.4))
+
+
+def test_a_stored_fit_gives_its_factor_at_the_views_refined_on():
+    assert refined_sdf_temperature({"sdf_temperature": 0.5, "sdf_view_exponent": 0.5}, 9) == pytest.approx(1.5)
+    assert refined_sdf_temperature({"sdf_temperature": 0.5}, 9) == 0.5  # a fit stored before the exponent
+    with pytest.raises(ValueError, match="number of views refined on"):
+        refined_sdf_temperature({"sdf_temperature": 0.5}, 0)

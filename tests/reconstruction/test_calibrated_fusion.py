@@ -62,6 +62,13 @@ def test_the_meshes_std_takes_the_rules_sdf_temperature_unless_the_code_was_refi
     refined["calibration"] = {"sdf_temperature": 0.6, "sdf_floor": 0.004}  # unless fitted for the refinement
     assert sdf_temperature(shared, predictor, refined) == 0.6 and sdf_floor(shared, refined) == 0.004
     assert sdf_temperature(BayesianFusion(), predictor) == 1.5
+    # A factor fitted to grow with the views refined on, T n^beta: read at the record's count (4^0.5 = 2).
+    refined["calibration"]["sdf_view_exponent"] = 0.5
+    assert sdf_temperature(shared, predictor, refined) == pytest.approx(0.6)  # a record without the count: one view
+    refined["views_refined"] = 4
+    assert sdf_temperature(shared, predictor, refined) == pytest.approx(1.2)
+    refined["calibration"]["seen"] = {"sdf_temperature": 0.3, "sdf_view_exponent": 0.5, "floor_seen": 0.0}
+    assert sdf_temperature(shared, predictor, refined) == pytest.approx(0.6)  # the seen model's own factor
 
 
 def test_the_rules_distance_term_is_read_with_its_fit_and_not_given_to_a_refined_code(tmp_path):

@@ -334,7 +334,7 @@ def test_cli_camera_file_needs_refine(tiny_run, tmp_path, capsys):
 
 def test_fit_refinement_stores_a_calibration_that_the_refinement_then_applies(tiny_run, sphere_predictor, tmp_path):
     from ushape.evaluation.refine_method import RefineMethod
-    from ushape.recalibration.refine_information import SCALE_GRID
+    from ushape.recalibration.refine_information import SCALE_GRID, VIEW_EXPONENT_GRID, refined_sdf_temperature
     from ushape.recalibration.temperature import CALIBRATION_GRID
     from ushape.reconstruction.refine_calibration import (
         calibration_path,
@@ -351,6 +351,10 @@ def test_fit_refinement_stores_a_calibration_that_the_refinement_then_applies(ti
         record = fit_and_store_refinement_calibration(sphere_predictor, "masks", size=12, n_points=200)
         assert record["view_counts"] == [1, 3] and record["n_shapes"] == 3  # 3 views a shape: no 10
         assert record["information_scale"] in SCALE_GRID and record["sdf_temperature"] in CALIBRATION_GRID
+        assert (
+            record["sdf_view_exponent"] in VIEW_EXPONENT_GRID
+            and record["seen"]["sdf_view_exponent"] in VIEW_EXPONENT_GRID
+        )
         misfit = record["sdf_decoder_misfit"]
         assert misfit > 0 and record["sdf_floor"] in floor_grid(misfit)
         # T = 1 and no floor are on the grids: the fit is never worse on val than none.
@@ -366,14 +370,16 @@ def test_fit_refinement_stores_a_calibration_that_the_refinement_then_applies(ti
         summary = reconstruct(sphere_predictor, views, BayesianKFusion(k=2), tmp_path / "out", settings)
         applied = summary["refinement"]["calibration"]
         assert applied["information_scale"] == record["information_scale"] and applied["size"] == 12
-        # The mesh's std is drawn with the seen model: its factor, its floors per vertex (no one floor).
-        assert summary["sdf_temperature"] == seen["sdf_temperature"] and summary["sdf_floor"] is None
+        # The mesh's std is drawn with the seen model: its factor at the 2 views refined on, its floors per vertex.
+        assert summary["refinement"]["views_refined"] == 2 and summary["sdf_floor"] is None
+        assert summary["sdf_temperature"] == pytest.approx(refined_sdf_temperature(seen, 2))
         assert applied["seen"] == seen and 0 < summary["refinement"]["seen_vertices"] < 1
         assert summary["mesh"]["std_mean"] >= seen["floor_seen"] * (1 - 1e-6)  # every vertex carries a floor
         run = type("Run", (), {"predictor": sphere_predictor})()
         method = RefineMethod("masks", size=12, calibrated=True)
         assert method.settings_for(run).information_scale == record["information_scale"]
         assert method.sdf_calibration_for(run) == (record["sdf_temperature"], record["sdf_floor"] or None)
+        assert method.sdf_calibration_for(run, 3)[0] == pytest.approx(refined_sdf_temperature(record, 3))
         with pytest.raises(ValueError, match="--fit-refinement depth"):
             RefineMethod("depth", calibrated=True).settings_for(run)
         assert RefineMethod("depth").settings_for(run).information_scale == 1.0  # not calibrated: its own knobs

@@ -43,16 +43,17 @@ class ReconstructionMethod:
     name: str = ""
     label: str = ""
     # (T_sdf, floor) of the SDF variance propagated from this method's Gaussians, T_sdf var + floor^2, where it
-    # was fitted for them on val (a refined posterior is not the encoder's Gaussian the run's T_sdf was
-    # fitted on); None: the run's single-view T_sdf and no floor.
+    # was given for them (a refined posterior is not the encoder's Gaussian the run's T_sdf was fitted on);
+    # None: the run's single-view T_sdf and no floor.
     sdf_calibration: tuple[float, float | None] | None = None
 
     def encodings(self, run: EncoderRun, encodings: Encodings, min_scale: float) -> Encodings:
         """The per-view Gaussians [N, D] the protocols fuse for these views (default: the encoder's own)."""
         return encodings
 
-    def sdf_calibration_for(self, run: EncoderRun) -> tuple[float, float | None] | None:
-        """(T_sdf, floor) of this method's SDF variance for a run (default: `sdf_calibration`, the same for all)."""
+    def sdf_calibration_for(self, run: EncoderRun, n_views: int = 1) -> tuple[float, float | None] | None:
+        """(T_sdf, floor) of this method's SDF variance for a run's Gaussians of n_views views (default:
+        `sdf_calibration`, the same for all)."""
         return self.sdf_calibration
 
     def after_fusion(self, context, fused: Estimate, keys: Sequence[ViewKey], min_scale: float) -> Estimate:

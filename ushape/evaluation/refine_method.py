@@ -31,6 +31,7 @@ from ushape.errors import InputError
 from ushape.evaluation.methods import ReconstructionMethod
 from ushape.evaluation.views import Estimate, ViewKey, encoder_tag
 from ushape.fusion.strategies import check_optional_number
+from ushape.recalibration.refine_information import refined_sdf_temperature
 from ushape.reconstruction.refine_calibration import read_refinement_calibration
 from ushape.refinement import ObservedView, RefineSettings, crop_view, refine, refine_settings, world_views
 
@@ -132,9 +133,12 @@ class RefineMethod(ReconstructionMethod):
         fit = self.run_calibration(run)
         return self.settings if fit is None else replace(self.settings, information_scale=fit["information_scale"])
 
-    def sdf_calibration_for(self, run) -> tuple[float, float | None] | None:
+    def sdf_calibration_for(self, run, n_views: int = 1) -> tuple[float, float | None] | None:
+        """The run's fitted (T_sdf n^beta, floor) at n_views views where `calibrated`, else `sdf_calibration`."""
         fit = self.run_calibration(run)
-        return self.sdf_calibration if fit is None else (fit["sdf_temperature"], fit["sdf_floor"] or None)
+        if fit is None:
+            return self.sdf_calibration
+        return refined_sdf_temperature(fit, n_views), fit["sdf_floor"] or None
 
     def after_fusion(self, context, fused: Estimate, keys: Sequence[ViewKey], min_scale: float) -> Estimate:
         """`fused` refined on the views `keys` as the evaluation cropped them at min_scale (cached)."""

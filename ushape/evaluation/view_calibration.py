@@ -14,6 +14,7 @@ read its diagonal (each dimension's marginal, exact for them).
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Callable, Mapping, Sequence
 
 import torch
@@ -98,7 +99,7 @@ def calibration_across_views(
     decoder=None,
     sdf_temperature: float | None = None,
     after: Sequence[AfterSubset] | None = None,  # per shape: a method's step after fusion
-    after_sdf: tuple[float, float | None] | None = None,  # (T_sdf, floor) fitted for the step's Gaussians
+    after_sdf: Callable[[int], tuple[float, float | None] | None] | None = None,  # n -> the step's (T_sdf, floor)
 ) -> list[dict]:
     """One row per (rule, n views): latent (and with `sdf`, SDF) calibration scores over every shape.
 
@@ -121,7 +122,8 @@ def calibration_across_views(
                 fused_mu, fused_var, error = fused_errors(rule, mu, var, code, subsets[i], step)
                 latent_err.append(error.reshape(-1)), latent_std.append(marginal(fused_var).sqrt().reshape(-1))
                 if sdf is not None:
-                    calibration = rule_sdf_temperature(rule, sdf_temperature, after, after_sdf)
+                    own = None if after_sdf is None else after_sdf(n)
+                    calibration = rule_sdf_temperature(rule, sdf_temperature, after, own)
                     e, s = clamped_sdf_errors(decoder, fused_mu, fused_var, *sdf[i], *calibration)
                     sdf_err.append(e.reshape(-1)), sdf_std.append(s.reshape(-1))
             if not usable:
@@ -253,7 +255,7 @@ def view_calibration_protocol(
         decoder=decoder,
         sdf_temperature=sdf_t,
         after=None if after is None else steps,
-        after_sdf=None if after is None or run.method is None else run.method.sdf_calibration_for(run),
+        after_sdf=None if after is None or run.method is None else partial(run.method.sdf_calibration_for, run),
     )
     log_fallbacks(run.spec.name, fallbacks, "Table V fused view subsets")
     return [{"encoder": run.spec.name, "label": run.spec.label, **row} for row in rows]

@@ -27,6 +27,7 @@ from torch import Tensor
 from ushape.planning.criteria import unseen_uncertain_surface
 from ushape.propagation.linearised import latent_jacobian
 from ushape.propagation.sphere_tracing import sphere_trace
+from ushape.recalibration.refine_information import refined_sdf_temperature
 from ushape.refinement.defaults import with_defaults
 from ushape.refinement.observation import ObservationSettings, code_functions, residuals, view_rays
 from ushape.refinement.posterior import RefineSettings, information_matrix, row_weights
@@ -257,6 +258,7 @@ class SeenInformationGain(SurfaceInformationGain):
         if surface is None:
             return latent
         f = self.floors
-        return f["sdf_temperature"] * latent + seen_floor_drop(
+        temperature = refined_sdf_temperature(f, len(state.taken) + 1)  # at the views once the candidate is taken
+        return temperature * latent + seen_floor_drop(
             surface.visible, surface.seen, surface.area, f["floor_seen"], f["floor_unseen"]
         )

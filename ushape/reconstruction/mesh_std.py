@@ -14,7 +14,7 @@ from torch import Tensor
 from ushape.fusion.rules import FusedCode
 from ushape.propagation.mesh import vertex_uncertainty
 from ushape.recalibration import apply_temperature
-from ushape.recalibration.refine_information import seen_floor_variance
+from ushape.recalibration.refine_information import refined_sdf_temperature, seen_floor_variance
 from ushape.reconstruction.predictor import Predictor
 from ushape.reconstruction.settings import ReconstructionSettings
 from ushape.reconstruction.visibility import seen_by_views
@@ -25,13 +25,15 @@ Fusion = Callable[[Tensor, Tensor], FusedCode]  # (mu [V, D], var [V, D]) -> Fus
 
 def sdf_temperature(fusion: Fusion, predictor: Predictor, refinement: dict | None = None) -> float | None:
     """The factor on the SDF variance propagated from the code meshed: a refined code's, the refinement's own
-    where --fit-refinement fitted it (`refinement["calibration"]`); a fused code's, the fusion rule's own where
-    it has one (`shared`, fitted on val on its fused variance); else the predictor's single-view one."""
+    where --fit-refinement fitted it (`refinement["calibration"]`, at the number of views refined on); a fused
+    code's, the fusion rule's own where it has one (`shared`, fitted on val on its fused variance); else the
+    predictor's single-view one."""
     if refinement is not None:
         calibration, floors = refinement.get("calibration"), seen_floors(refinement)
+        n_views = max(1, int(refinement.get("views_refined") or 1))  # the fit's factor may grow with the views
         if floors is not None:  # fitted with the seen / unseen floors, as the mesh's std is drawn
-            return floors["sdf_temperature"]
-        return predictor.sdf_temperature if calibration is None else calibration["sdf_temperature"]
+            return refined_sdf_temperature(floors, n_views)
+        return predictor.sdf_temperature if calibration is None else refined_sdf_temperature(calibration, n_views)
     own = getattr(fusion, "sdf_temperature", None)
     return predictor.sdf_temperature if own is None else own
 

@@ -28,7 +28,7 @@ from ushape.workspace import CONFIG_FILE
 
 log = logging.getLogger(__name__)
 # What summary.json's refinement record keeps of the calibration it applied (reconstruct.py --fit-refinement).
-APPLIED = ("information_scale", "sdf_temperature", "sdf_floor", "seen", "size", "n_shapes")
+APPLIED = ("information_scale", "sdf_temperature", "sdf_view_exponent", "sdf_floor", "seen", "size", "n_shapes")
 
 
 def refined(
@@ -76,6 +76,7 @@ def refined(
     posterior = refine(decoder, fused.mu, fused.var, views, options)
     record = {"mode": settings.refine, "starts": settings.refine_starts, **posterior.record()}
     record["views_with_camera"] = sum(v is not None for v in views)
+    record["views_refined"] = sum(v["used"] is not None for v in posterior.views)  # what its SDF factor is read at
     record["calibration"] = None if calibration is None else {k: calibration.get(k) for k in APPLIED}
     record["mu"] = posterior.mu.tolist()
     views = [v for v in views if v is not None]
@@ -117,6 +118,7 @@ def pose_refined(
     record["pose"]["elevation_deg"] = pose_settings.elevation
     record["pose"]["tilt_prior_deg"] = pose_settings.tilt_prior_deg
     record["views_with_camera"] = sum(v is not None for v in views)
+    record["views_refined"] = len(unposed)  # every view, each through its estimated camera
     record["calibration"] = None if calibration is None else {k: calibration.get(k) for k in APPLIED}
     record["mu"] = posterior.mu.tolist()
     return FusedCode(posterior.mu, posterior.cov, fused.kept), record, posterior.posed_views(unposed)
